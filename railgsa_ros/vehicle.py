@@ -1,0 +1,177 @@
+"""Quarter-vehicle model of Schenkendorf & Groos (Eq. 1-4, Table 1), vectorised over parameter sets.
+
+State x = [v_s, v_us, x_s, x_us] (m/s, m/s, m, m); input u = vertical track irregularity under the
+wheel (m, +z up); outputs are the sprung (car-body) and unsprung accelerations (m/s^2).
+
+Every function takes ``theta``, an array of shape (..., 5) ordered as ``PARAM_NAMES``, so that many
+parameter sets are evaluated at once; a :class:`VehicleParams` converts to it with ``as_array``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from railgsa_ros.errors import ConfigError
+
+PARAM_NAMES = ('m_s', 'm_us', 'k_s', 'k_us', 'c')
+PARAM_UNITS = {'m_s': 'kg', 'm_us': 'kg', 'k_s': 'N/m', 'k_us': 'N/m', 'c': 'N*s/m'}
+
+
+def _coerce_number(value: Any) -> Any:
+    """Accept numeric strings such as '2.13e6', which YAML 1.1 leaves as strings."""
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1."""
+
+    m_s: float = 9875.0
+    m_us: float = 1100.0
+    k_s: float = 2.13e6
+    k_us: float = 1.42e8
+    c: float = 1.2e5
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = _coerce_number(getattr(self, f.name))
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f'vehicle.{f.name}: expected a number in {PARAM_UNITS[f.name]}, '
+                                  f'got {value!r}')
+            if not np.isfinite(value) or value <= 0:
+                raise ConfigError(f'vehicle.{f.name}: must be a positive finite number in '
+                                  f'{PARAM_UNITS[f.name]}, got {value!r}')
+            object.__setattr__(self, f.name, float(value))
+
+    def as_array(self) -> np.ndarray:
+        """Return the parameters as a float array of shape (5,), ordered as PARAM_NAMES."""
+        return np.array([getattr(self, n) for n in PARAM_NAMES])
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the parameters as a plain dict."""
+        return asdict(self)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> 'VehicleParams':
+        """Build from a mapping with every field present; unknown or missing keys are errors."""
+        if not isinstance(data, Mapping):
+            raise ConfigError(f'{source}: expected a mapping of {", ".join(PARAM_NAMES)}')
+        unknown = sorted(set(data) - set(PARAM_NAMES))
+        if unknown:
+            raise ConfigError(f'{source}: unknown field(s) {", ".join(map(str, unknown))}; '
+                              f'expected {", ".join(PARAM_NAMES)}')
+        missing = [n for n in PARAM_NAMES if n not in data]
+        if missing:
+            raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
+        return cls(**{n: data[n] for n in PARAM_NAMES})
+
+
+def load_vehicle(path: str | Path) -> VehicleParams:
+    """Load ``vehicle:`` parameters from a YAML file such as ``config/vehicle.yaml``."""
+    from railgsa_ros.config import load_yaml
+
+    doc = load_yaml(path)
+    section = doc.get('vehicle') if isinstance(doc, dict) else None
+    if section is None:
+        raise ConfigError(f'{path}: missing top-level "vehicle:" section')
+    return VehicleParams.from_mapping(section, source=f'{path}: vehicle')
+
+
+def as_theta(params: VehicleParams | np.ndarray | Mapping[str, float]) -> np.ndarray:
+    """Coerce parameters to a float array of shape (..., 5)."""
+    if isinstance(params, VehicleParams):
+        return params.as_array()
+    if isinstance(params, Mapping):
+        return VehicleParams.from_mapping(params).as_array()
+    theta = np.asarray(params, dtype=float)
+    if theta.shape[-1:] != (5,):
+        raise ValueError(f'theta must have shape (..., 5) ordered as {PARAM_NAMES}, '
+                         f'got {theta.shape}')
+    return theta
+
+
+def state_space(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, ...]:
+    """Return (A, B, C_s, C_us) of Eq. 2: shapes (..., 4, 4), (..., 4, 1), (..., 1, 4) twice.
+
+    C_s maps the state to the sprung acceleration, C_us to the unsprung one; D = 0 for both.
+    """
+    m_s, m_us, k_s, k_us, c = np.moveaxis(as_theta(params), -1, 0)
+    zero, one = np.zeros_like(m_s), np.ones_like(m_s)
+    row_s = [-c / m_s, c / m_s, -k_s / m_s, k_s / m_s]
+    row_us = [c / m_us, -c / m_us, k_s / m_us, -(k_s + k_us) / m_us]
+    a = np.stack([np.stack(row_s, -1), np.stack(row_us, -1),
+                  np.stack([one, zero, zero, zero], -1),
+                  np.stack([zero, one, zero, zero], -1)], -2)
+    b = np.stack([zero, k_us / m_us, zero, zero], -1)[..., None]
+    return a, b, a[..., 0:1, :], a[..., 1:2, :]
+
+
+def tf_polynomials(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, ...]:
+    """Coefficients, highest power first, of G_s = num_s/den and G_us = num_us/den (Eq. 3).
+
+    Derived by hand from Eq. 1 (exact, no ill-conditioned ss2tf):
+    den    = m_s m_us s^4 + c (m_s + m_us) s^3 + (k_s (m_s + m_us) + k_us m_s) s^2 + c k_us s + k_s k_us
+    num_s  = k_us (c s + k_s) s^2
+    num_us = k_us (m_s s^2 + c s + k_s) s^2
+    All three are divided by m_s m_us so that den is monic. Shapes (..., 5).
+    """
+    m_s, m_us, k_s, k_us, c = np.moveaxis(as_theta(params), -1, 0)
+    zero = np.zeros_like(m_s)
+    den = np.stack([m_s * m_us, c * (m_s + m_us), k_s * (m_s + m_us) + k_us * m_s,
+                    c * k_us, k_s * k_us], -1)
+    num_s = np.stack([zero, k_us * c, k_us * k_s, zero, zero], -1)
+    num_us = np.stack([k_us * m_s, k_us * c, k_us * k_s, zero, zero], -1)
+    scale = (m_s * m_us)[..., None]
+    return num_s / scale, num_us / scale, den / scale
+
+
+def frequency_response(params: VehicleParams | np.ndarray, s: np.ndarray,
+                       output: str = 'sprung') -> np.ndarray:
+    """G(s) for complex ``s`` (rad/s): shape broadcast(theta[..., 0], s); output sprung|unsprung."""
+    num_s, num_us, den = tf_polynomials(params)
+    num = {'sprung': num_s, 'unsprung': num_us}[output]
+    s = np.asarray(s)
+    theta_shape = num.shape[:-1]
+    s_b = s.reshape((1,) * len(theta_shape) + s.shape)
+    powers = s_b[..., None] ** np.arange(4, -1, -1)
+    expand = (slice(None),) * len(theta_shape) + (None,) * s.ndim
+    return (np.sum(num[expand] * powers, -1) / np.sum(den[expand] * powers, -1))
+
+
+def poles(params: VehicleParams | np.ndarray) -> np.ndarray:
+    """Open-loop poles (rad/s) = eigenvalues of A, shape (..., 4)."""
+    return np.linalg.eigvals(state_space(params)[0])
+
+
+def zeros_sprung(params: VehicleParams | np.ndarray) -> np.ndarray:
+    """Zeros (rad/s) of G_s: a double zero at 0 and -k_s/c; shape (..., 3)."""
+    theta = as_theta(params)
+    k_s, c = theta[..., 2], theta[..., 4]
+    zero = np.zeros_like(k_s)
+    return np.stack([zero, zero, -k_s / c], -1)
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One vibration mode: natural frequency (Hz), damping ratio and the pole (rad/s)."""
+
+    natural_frequency_hz: float
+    damping_ratio: float
+    pole: complex
+
+
+def modes(params: VehicleParams) -> list[Mode]:
+    """The two modes (bounce of the car body, wheel hop), sorted by natural frequency."""
+    p = poles(params)
+    upper = p[p.imag > 0]
+    out = [Mode(float(abs(z) / (2 * np.pi)), float(-z.real / abs(z)), complex(z)) for z in upper]
+    return sorted(out, key=lambda m: m.natural_frequency_hz)

@@ -1,0 +1,39 @@
+"""Build script for railgsa_ros: one tree for pip (``pip install -e .[ros,test]``) and colcon."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'railgsa_ros'
+ROS = ['ros-jazzy-rclpy==7.1.6', 'ros-jazzy-common-interfaces==5.3.6',
+       'ros-jazzy-rmw-fastrtps-cpp==8.4.3']
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'benchmarks']),
+    package_data={PACKAGE: ['data/*']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+    ],
+    python_requires='>=3.10',
+    install_requires=['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'matplotlib>=3.7',
+                      'rosbags>=0.10', 'mcap>=1.1', 'mcap-ros2-support>=0.5'],
+    extras_require={
+        'ros': ROS,
+        'test': ['pytest>=7', 'hypothesis>=6', 'ruff>=0.5'],
+        'bench': ['SALib>=1.5', 'chaospy>=4.3'],
+    },
+    zip_safe=True,
+    maintainer='railgsa developers',
+    maintainer_email='railgsa@example.invalid',
+    description='Track irregularity from car-body acceleration with uncertainty and sensitivity.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'railgsa = railgsa_ros.cli.main:main',
+        ],
+    },
+)
