@@ -1,0 +1,126 @@
+"""A small stand-in for diagnostic_updater (not packaged for pip): periodic /diagnostics.
+
+Each node registers tasks; every period (steady clock, so it keeps reporting when a simulated
+clock stops) the publisher calls them and sends one DiagnosticArray with a status per task named
+``"<node>: <task>"`` and the node's hardware_id. A task that raises becomes an ERROR status: the
+reporter never takes the node down.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+
+from railgsa_ros.nodes.qos import DIAGNOSTICS_QOS
+
+OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
+                          DiagnosticStatus.STALE)
+
+
+@dataclass
+class Report:
+    """One task's verdict: level (DiagnosticStatus.OK..STALE, bytes), message and values."""
+
+    level: bytes
+    message: str
+    values: Mapping[str, object] = field(default_factory=dict)
+
+
+def format_value(value: object) -> str:
+    """Diagnostic values are strings: floats with 6 significant digits, the rest with str()."""
+    if isinstance(value, (float, np.floating)):
+        return f'{float(value):.6g}'
+    return str(value)
+
+
+def make_status(name: str, hardware_id: str, report: Report) -> DiagnosticStatus:
+    """Build a DiagnosticStatus from a Report."""
+    return DiagnosticStatus(level=report.level, name=name, message=report.message,
+                            hardware_id=hardware_id,
+                            values=[KeyValue(key=str(k), value=format_value(v))
+                                    for k, v in report.values.items()])
+
+
+class Deltas:
+    """Per-period increments of cumulative counters (reason -> count)."""
+
+    def __init__(self) -> None:
+        self._previous: dict[str, int] = {}
+
+    def __call__(self, totals: Mapping[str, int]) -> dict[str, int]:
+        """Return totals minus the totals of the previous call, for every reason in totals."""
+        delta = {k: int(v) - self._previous.get(k, 0) for k, v in totals.items()}
+        self._previous = dict(totals)
+        return delta
+
+
+class LatencyWindow:
+    """Latencies (s) collected during one diagnostics period; bounded memory."""
+
+    def __init__(self, maxlen: int = 100_000) -> None:
+        self._values: deque[float] = deque(maxlen=maxlen)
+
+    def add(self, seconds: float) -> None:
+        """Record one latency in seconds."""
+        self._values.append(seconds)
+
+    def take(self) -> dict[str, float]:
+        """p50, p99 and max in ms of the period (NaN when empty), then start a new period."""
+        if not self._values:
+            return {'latency_p50_ms': float('nan'), 'latency_p99_ms': float('nan'),
+                    'latency_max_ms': float('nan')}
+        ms = np.fromiter(self._values, float) * 1e3
+        self._values.clear()
+        p50, p99 = np.percentile(ms, [50, 99])
+        return {'latency_p50_ms': float(p50), 'latency_p99_ms': float(p99),
+                'latency_max_ms': float(ms.max())}
+
+
+class DiagnosticsPublisher:
+    """Publishes the node's tasks on /diagnostics every ``period_s`` seconds of steady time.
+
+    A task is ``fn(elapsed_s) -> Report`` where elapsed_s is the steady time since the previous
+    report (for rates).
+    """
+
+    def __init__(self, node: Node, hardware_id: str, period_s: float = 1.0) -> None:
+        self._node = node
+        self.hardware_id = hardware_id
+        self._tasks: list[tuple[str, Callable[[float], Report]]] = []
+        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+        self._last = time.monotonic()
+        self._timer = node.create_timer(period_s, self.publish,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def add(self, task: str, fn: Callable[[float], Report]) -> None:
+        """Register a task; its status is named ``"<node>: <task>"``."""
+        self._tasks.append((task, fn))
+
+    def publish(self) -> DiagnosticArray:
+        """Run every task now and publish (and return) the array."""
+        now = time.monotonic()
+        elapsed, self._last = max(now - self._last, 1e-9), now
+        statuses = []
+        for task, fn in self._tasks:
+            try:
+                report = fn(elapsed)
+            except Exception as exc:  # a diagnostic task must not kill the node
+                report = Report(ERROR, f'diagnostic task failed: {exc!r}')
+            statuses.append(make_status(f'{self._node.get_name()}: {task}', self.hardware_id,
+                                        report))
+        msg = DiagnosticArray(status=statuses)
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        self._pub.publish(msg)
+        return msg
+
+    def destroy(self) -> None:
+        """Release the timer and the publisher."""
+        self._node.destroy_timer(self._timer)
+        self._node.destroy_publisher(self._pub)

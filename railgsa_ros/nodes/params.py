@@ -1,0 +1,92 @@
+"""Declarative ROS parameters: one ParamSpec per parameter gives its descriptor and checks.
+
+rclpy itself enforces the type, the numeric range and read_only; ``choices`` (string enums) are
+checked here. ``declare`` turns any rejection at start-up into a ConfigError naming the parameter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from railgsa_ros.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A parameter: name, default (its type is the parameter's type), description with units,
+    optional inclusive numeric bounds, string choices, and read_only (fixed after start-up)."""
+
+    name: str
+    default: bool | int | float | str
+    description: str
+    bounds: tuple[float, float] | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ParameterDescriptor advertised to `ros2 param describe`."""
+        desc = ParameterDescriptor(name=self.name, description=self.description,
+                                   read_only=self.read_only)
+        if self.choices:
+            desc.additional_constraints = 'one of: ' + ', '.join(self.choices)
+        if self.bounds is not None:
+            low, high = self.bounds
+            if isinstance(self.default, float):
+                desc.floating_point_range = [FloatingPointRange(
+                    from_value=float(low), to_value=float(high), step=0.0)]
+            else:
+                desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(high),
+                                                   step=1)]
+        return desc
+
+    def check(self, value: Any) -> str | None:
+        """Reason why ``value`` is not acceptable beyond rclpy's own checks, or None."""
+        if self.choices and value not in self.choices:
+            return f'{self.name}: {value!r} is not one of {", ".join(self.choices)}'
+        return None
+
+
+def declare(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
+    """Declare every spec on ``node`` (overrides from --ros-args apply); return name -> value.
+
+    Raises ConfigError naming the parameter for a wrong type, an out-of-range value or a value
+    that is not one of its choices.
+    """
+    values = {}
+    for spec in specs:
+        try:
+            param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        except InvalidParameterTypeException:
+            raise ConfigError(f'parameter {spec.name}: expected a '
+                              f'{type(spec.default).__name__}') from None
+        except InvalidParameterValueException as exc:
+            raise ConfigError(f'parameter {spec.name}: {exc}') from None
+        reason = spec.check(param.value)
+        if reason is not None:
+            raise ConfigError(f'parameter {reason}')
+        values[spec.name] = param.value
+    return values
+
+
+def merged(current: Mapping[str, Any], specs: Sequence[ParamSpec],
+           changes: Iterable[Parameter]) -> tuple[dict[str, Any], str | None]:
+    """Current values updated with ``changes`` (only declared specs), and the first reason to
+    reject one of them (None if all pass ``ParamSpec.check``)."""
+    by_name = {s.name: s for s in specs}
+    values = dict(current)
+    for param in changes:
+        spec = by_name.get(param.name)
+        if spec is None:
+            continue
+        reason = spec.check(param.value)
+        if reason is not None:
+            return values, reason
+        values[param.name] = param.value
+    return values, None
