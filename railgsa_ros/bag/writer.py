@@ -1,0 +1,95 @@
+"""Writing rosbag2 bags (metadata.yaml + one .mcap or .db3 file) atomically with rosbags."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from contextlib import ExitStack
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from rosbags.interfaces import Connection, Qos
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+from railgsa_ros.bag.messages import qos, typestore
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.fileio import atomic_output
+
+STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+
+Batch = tuple[np.ndarray, Sequence[bytes]]
+
+
+class BagWriter:
+    """A rosbag2 writer for arbitrary message types, used as a context manager.
+
+    The bag is built in a temporary directory next to ``path`` and renamed into place when the
+    ``with`` block ends without error; on error nothing is left behind. ``compression='zstd'``
+    compresses MCAP chunks (storage-level compression, as ``ros2 bag record
+    --compression-format zstd`` with the MCAP plugin); sqlite3 bags are written uncompressed.
+    """
+
+    def __init__(self, path: str | Path, storage: str = 'mcap', compression: str | None = None,
+                 overwrite: bool = False) -> None:
+        if storage not in STORAGES:
+            raise ConfigError(f'storage: expected one of {", ".join(STORAGES)}, got {storage!r}')
+        if compression not in (None, 'zstd'):
+            raise ConfigError(f'compression: expected zstd or none, got {compression!r}')
+        if compression and storage != 'mcap':
+            raise ConfigError('compression: zstd needs the mcap storage')
+        self.path = Path(path)
+        self.storage = storage
+        self.compression = compression
+        self.overwrite = overwrite
+        self._stack: ExitStack | None = None
+        self._writer: Writer | None = None
+        self._connections: dict[str, Connection] = {}
+
+    def __enter__(self) -> BagWriter:
+        with ExitStack() as stack:
+            tmp = stack.enter_context(atomic_output(self.path, self.overwrite))
+            writer = Writer(tmp, version=9, storage_plugin=STORAGES[self.storage])
+            if self.compression:
+                writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            self._writer = stack.enter_context(writer)
+            self._stack = stack.pop_all()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        stack, self._stack, self._writer = self._stack, None, None
+        if stack is not None:
+            stack.__exit__(exc_type, exc, tb)
+
+    def add_topic(self, topic: str, msgtype: str, offered_qos: Qos | None = None) -> None:
+        """Declare a topic; the default offered QoS is RELIABLE, KEEP_LAST 10."""
+        if self._writer is None:
+            raise RuntimeError('BagWriter is not open')
+        if topic in self._connections:
+            raise ConfigError(f'{self.path}: topic {topic} added twice')
+        self._connections[topic] = self._writer.add_connection(
+            topic, msgtype, typestore=typestore(),
+            offered_qos_profiles=[offered_qos or qos(True, 10)])
+
+    def write(self, topic: str, log_time_ns: int, msg: Any) -> None:
+        """Write one message: serialised CDR bytes or a rosbags message object."""
+        conn = self._connections[topic]
+        if not isinstance(msg, (bytes, bytearray, memoryview)):
+            msg = typestore().serialize_cdr(msg, conn.msgtype)
+        self._writer.write(conn, int(log_time_ns), msg)
+
+    def write_batches(self, batches: Mapping[str, Batch]) -> None:
+        """Write serialised messages of several topics interleaved in log-time order (stable),
+        as a recorder would; ``batches`` maps topic -> (log_times_ns (N,), raw messages)."""
+        topics = list(batches)
+        times = [np.asarray(batches[t][0], dtype=np.int64) for t in topics]
+        which = np.concatenate([np.full(t.size, i) for i, t in enumerate(times)])
+        index = np.concatenate([np.arange(t.size) for t in times])
+        order = np.argsort(np.concatenate(times), kind='stable')
+        conns = [self._connections[t] for t in topics]
+        raws = [batches[t][1] for t in topics]
+        stamps = np.concatenate(times)[order].tolist()
+        write = self._writer.write
+        for w, i, t in zip(which[order].tolist(), index[order].tolist(), stamps, strict=True):
+            write(conns[w], t, raws[w][i])

@@ -1,0 +1,53 @@
+"""Atomic output: write to a temporary sibling, rename into place only when everything worked."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+import os
+from pathlib import Path
+import shutil
+import tempfile
+
+from railgsa_ros.errors import ConfigError
+
+
+@contextmanager
+def atomic_output(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a not-yet-existing temporary path; on success it is renamed to ``path``.
+
+    The temporary path lies in a hidden directory next to ``path`` (same file system, so the
+    rename is atomic) and may become a file or a directory. On any exception nothing is left
+    behind and an existing ``path`` is untouched. An existing ``path`` is an error unless
+    ``overwrite`` is true. Unwritable locations raise ConfigError naming ``path``.
+    """
+    path = Path(path)
+    if (path.exists() or path.is_symlink()) and not overwrite:
+        raise ConfigError(f'{path}: already exists (choose another output path)')
+    parent = path.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        holder = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.tmp', dir=parent))
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot write ({exc.strerror or exc})') from None
+    try:
+        tmp = holder / path.name
+        yield tmp
+        if not (tmp.exists() or tmp.is_symlink()):
+            raise ConfigError(f'{path}: nothing was written')
+        _commit(tmp, path, holder)
+    finally:
+        shutil.rmtree(holder, ignore_errors=True)
+
+
+def _commit(tmp: Path, path: Path, holder: Path) -> None:
+    """Move ``tmp`` to ``path``; an existing ``path`` is swapped out first, then deleted."""
+    old = holder / (path.name + '.old')
+    try:
+        if path.exists() or path.is_symlink():
+            os.replace(path, old)
+        os.replace(tmp, path)
+    except OSError as exc:
+        if old.exists() or old.is_symlink():
+            os.replace(old, path)
+        raise ConfigError(f'{path}: cannot write ({exc.strerror or exc})') from None
