@@ -1,0 +1,50 @@
+"""Entry point of ``railgsa``: discovers the subcommand modules and maps errors to exit codes.
+
+RailGsaError -> ``error: <message>`` on stderr and exit code 2 (no traceback); Ctrl-C -> 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from railgsa_ros import __version__, cli
+from railgsa_ros.errors import RailGsaError
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``railgsa`` parser with one subparser per module of ``railgsa_ros.cli``."""
+    parser = argparse.ArgumentParser(
+        prog='railgsa',
+        description='Vertical track irregularity from car-body acceleration: simulation, '
+                    'inversion, uncertainty and sensitivity.')
+    parser.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
+    subparsers = parser.add_subparsers(title='commands', metavar='COMMAND', required=True)
+    for info in sorted(pkgutil.iter_modules(cli.__path__), key=lambda m: m.name):
+        if info.name == 'main' or info.name.startswith('_'):
+            continue
+        module = importlib.import_module(f'{cli.__name__}.{info.name}')
+        if hasattr(module, 'register'):
+            module.register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``railgsa`` with ``argv`` (default: sys.argv[1:]); returns the exit code."""
+    try:
+        args = build_parser().parse_args(argv)
+        return int(args.func(args) or 0)
+    except RailGsaError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+
+
+if __name__ == '__main__':
+    sys.exit(main())
