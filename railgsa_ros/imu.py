@@ -1,0 +1,248 @@
+"""MEMS car-body accelerometer model: specific force in ``imu_link`` as REP 145 defines it.
+
+The chain per axis, in order (rail_domain.md section 4, "simulation recipe"):
+white noise at the simulation rate -> linear-phase anti-alias FIR and decimation to the output rate
+(``scipy.signal.resample_poly``, delay compensated) -> + gravity (+g on z at rest, z up) ->
+scale factor -> + bias (turn-on + random walk) -> saturation at the range -> quantisation to the
+LSB; then stamps with clock drift and jitter, and Gilbert-Elliott dropout bursts. Every effect is
+off when its field is 0 (range: inf), and everything random comes from one seed.
+
+Units: m/s^2, s, Hz; noise density in (m/s^2)/sqrt(Hz) (one-sided), bias random walk in
+(m/s^2)/sqrt(s).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, fields, replace
+from fractions import Fraction
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from railgsa_ros.errors import ConfigError
+
+G = 9.80665  # standard gravity, m/s^2
+MG = 1e-3 * G
+UG = 1e-6 * G
+FRAME_ID = 'imu_link'
+STOPBAND_DB = 80.0  # anti-alias attenuation from the output Nyquist frequency up
+
+
+@dataclass(frozen=True)
+class ImuSpec:
+    """Accelerometer parameters (SI units); the defaults are an ideal sensor with gravity."""
+
+    name: str = 'custom'
+    output_rate_hz: float = 1000.0  # output data rate
+    antialias_ratio: float = 0.45  # -6 dB cut-off of the anti-alias FIR / output rate, < 0.5
+    noise_density: float = 0.0  # (m/s^2)/sqrt(Hz), white, every axis
+    bias: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s^2 per axis x, y, z
+    bias_rw: float = 0.0  # bias random walk, (m/s^2)/sqrt(s)
+    scale_factor: float = 0.0  # relative gain error: output = (1 + scale_factor) * input
+    gravity: float = G  # m/s^2 added to z (specific force); 0 removes it
+    lsb: float = 0.0  # quantisation step, m/s^2 (0: none)
+    range_mps2: float = math.inf  # saturation at +-range, m/s^2
+    clock_drift_ppm: float = 0.0  # stamp clock rate error, parts per million
+    stamp_jitter_s: float = 0.0  # standard deviation of the stamp error, s
+    dropout_fraction: float = 0.0  # long-run fraction of lost samples, [0, 1)
+    dropout_burst_s: float = 0.05  # mean length of a dropout burst, s
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            if f.name in ('name', 'bias'):
+                continue
+            value = getattr(self, f.name)
+            if isinstance(value, str):
+                with contextlib.suppress(ValueError):  # YAML 1.1 leaves '2e-5' a string
+                    value = float(value)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
+                raise ConfigError(f'imu.{f.name}: expected a number, got {value!r}')
+            object.__setattr__(self, f.name, float(value))
+        try:
+            bias = tuple(float(b) for b in np.broadcast_to(np.asarray(self.bias, float), 3))
+        except (TypeError, ValueError):
+            raise ConfigError(f'imu.bias: expected 1 or 3 numbers (m/s^2), got {self.bias!r}'
+                              ) from None
+        object.__setattr__(self, 'bias', bias)
+        checks = {
+            'output_rate_hz': self.output_rate_hz > 0 and math.isfinite(self.output_rate_hz),
+            'antialias_ratio': 0 < self.antialias_ratio < 0.5,
+            'range_mps2': self.range_mps2 > 0,
+            'scale_factor': self.scale_factor > -1,
+            'dropout_fraction': 0 <= self.dropout_fraction < 1,
+            'dropout_burst_s': self.dropout_burst_s > 0,
+            'bias': all(math.isfinite(b) for b in bias),
+        }
+        for name in ('noise_density', 'bias_rw', 'gravity', 'lsb', 'stamp_jitter_s'):
+            checks[name] = 0 <= getattr(self, name) < math.inf
+        checks['clock_drift_ppm'] = abs(self.clock_drift_ppm) < 1e5
+        for name, ok in checks.items():
+            if not ok:
+                raise ConfigError(f'imu.{name}: invalid value {getattr(self, name)!r}')
+
+    @property
+    def antialias_hz(self) -> float:
+        """-6 dB cut-off of the anti-alias filter, Hz."""
+        return self.antialias_ratio * self.output_rate_hz
+
+
+PRESETS: dict[str, ImuSpec] = {
+    'ideal': ImuSpec(name='ideal'),
+    # Analog Devices ADXL355 (rail_domain.md section 4): 22.5 ug/sqrt(Hz) [datasheet], +-2 g
+    # range [datasheet], 20 bit = 256000 LSB/g at +-2 g, ODR 1 kHz of 3.9 Hz-4 kHz [datasheet],
+    # bandwidth ODR/4 [AD forum]. Bias 3 mg = 0.15 mg/degC tempco [secondary] x 20 degC; random
+    # walk 5 ug/sqrt(s), scale error 0.1 %, 20 ppm clock, 0.1 ms jitter, 0.1 % dropouts in
+    # 50 ms bursts: assumptions inside the ranges of the recipe, not datasheet values.
+    'adxl355': ImuSpec(name='adxl355', output_rate_hz=1000.0, antialias_ratio=0.25,
+                       noise_density=22.5 * UG, bias=(3 * MG, 3 * MG, 3 * MG), bias_rw=5 * UG,
+                       scale_factor=1e-3, lsb=G / 256000, range_mps2=2 * G,
+                       clock_drift_ppm=20.0, stamp_jitter_s=1e-4, dropout_fraction=1e-3,
+                       dropout_burst_s=0.05),
+    # Bosch BMI088 accelerometer: ~175 ug/sqrt(Hz) [secondary], +-3 g with 10920 LSB/g
+    # [datasheet], ODR 400 Hz of 12.5-1600 Hz, bandwidth 0.4 ODR (ODR 50 Hz -> 20 Hz [code]).
+    # Bias 10 mg (20 degC in the 3-15 mg range), 20 ug/sqrt(s) random walk, 0.2 % scale error,
+    # 50 ppm clock, 0.2 ms jitter, 0.5 % dropouts in 50 ms bursts: assumptions as above.
+    'bmi088': ImuSpec(name='bmi088', output_rate_hz=400.0, antialias_ratio=0.4,
+                      noise_density=175 * UG, bias=(10 * MG, 10 * MG, 10 * MG), bias_rw=20 * UG,
+                      scale_factor=2e-3, lsb=G / 10920, range_mps2=3 * G, clock_drift_ppm=50.0,
+                      stamp_jitter_s=2e-4, dropout_fraction=5e-3, dropout_burst_s=0.05),
+}
+
+
+def imu_spec(name: str, **overrides: Any) -> ImuSpec:
+    """A preset by name with fields overridden; unknown preset or field -> ConfigError."""
+    if name not in PRESETS:
+        raise ConfigError(f'sensor: unknown preset {name!r}; expected {", ".join(PRESETS)}')
+    known = {f.name for f in fields(ImuSpec)} - {'name'}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ConfigError(f'imu: unknown field(s) {", ".join(unknown)}')
+    return replace(PRESETS[name], **overrides)
+
+
+def load_imu(path: str | Path) -> ImuSpec:
+    """Read ``imu: {preset: NAME, <field>: value, ...}`` from a YAML file (see config/imu.yaml)."""
+    from railgsa_ros.config import load_yaml
+
+    doc = load_yaml(path)
+    section = doc.get('imu') if isinstance(doc, dict) else None
+    if not isinstance(section, dict):
+        raise ConfigError(f'{path}: missing top-level "imu:" mapping')
+    section = dict(section)
+    try:
+        return imu_spec(str(section.pop('preset', 'ideal')), **section)
+    except ConfigError as exc:
+        raise ConfigError(f'{path}: {exc}') from None
+
+
+def accel_covariance(spec: ImuSpec) -> float:
+    """Per-axis variance ((m/s^2)^2) for the REP 145 covariance diagonal.
+
+    White noise over the output bandwidth (noise density^2 * anti-alias cut-off) plus the
+    quantisation variance LSB^2 / 12.
+    """
+    return spec.noise_density ** 2 * spec.antialias_hz + spec.lsb ** 2 / 12
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """Accelerometer output: stamps (int64 ns), specific force (T, 3) m/s^2 in imu_link, a mask
+    of delivered samples (False = dropped) and the true sample times (s)."""
+
+    stamps_ns: np.ndarray
+    accel: np.ndarray
+    valid: np.ndarray
+    t_true_s: np.ndarray
+
+
+def antialias_fir(spec: ImuSpec, fs_filter: float) -> np.ndarray:
+    """Linear-phase Kaiser low-pass (odd length, DC gain 1) run at ``fs_filter`` Hz.
+
+    -6 dB at ``spec.antialias_hz``, STOPBAND_DB down from the output Nyquist frequency.
+    """
+    width = (0.5 - spec.antialias_ratio) * 2 * spec.output_rate_hz
+    numtaps, beta = signal.kaiserord(STOPBAND_DB, width / (0.5 * fs_filter))
+    return signal.firwin(numtaps | 1, spec.antialias_hz, window=('kaiser', beta), fs=fs_filter)
+
+
+def rate_ratio(fs_in: float, fs_out: float) -> tuple[int, int]:
+    """(up, down) with fs_out = fs_in * up / down exactly; ConfigError otherwise."""
+    ratio = Fraction(fs_out / fs_in).limit_denominator(10_000)
+    if abs(float(ratio) - fs_out / fs_in) > 1e-9 * fs_out / fs_in or ratio > Fraction(1, 2):
+        raise ConfigError(f'imu.output_rate_hz: {fs_out:g} Hz must be a simple fraction of at '
+                          f'most half the simulation rate {fs_in:g} Hz')
+    return ratio.numerator, ratio.denominator
+
+
+def dropout_mask(n: int, spec: ImuSpec, rng: np.random.Generator) -> np.ndarray:
+    """Gilbert-Elliott bursts: True where a sample is delivered.
+
+    Two-state Markov chain with geometric run lengths: bad runs of mean dropout_burst_s, good
+    runs of mean burst * (1 - f) / f, so that the long-run lost fraction is f.
+    """
+    frac = spec.dropout_fraction
+    if frac == 0 or n == 0:
+        return np.ones(n, bool)
+    bad_mean = max(1.0, spec.dropout_burst_s * spec.output_rate_hz)
+    good_mean = max(1.0, bad_mean * (1 - frac) / frac)
+    n_pairs = int(2 * n / (bad_mean + good_mean)) + 16
+    while True:
+        good = rng.geometric(1 / good_mean, n_pairs)
+        bad = rng.geometric(1 / bad_mean, n_pairs)
+        lengths = np.column_stack([good, bad]).ravel()
+        if lengths.sum() >= 2 * n:
+            break
+        n_pairs *= 2
+    states = np.repeat(np.tile([True, False], n_pairs), lengths)
+    # stationary start: begin at a uniformly random point of the alternating sequence
+    offset = rng.integers(0, states.size - n + 1)
+    return states[offset:offset + n]
+
+
+def measure(t_s: np.ndarray, a_true: np.ndarray, spec: ImuSpec, seed: int | None = 0
+            ) -> ImuSamples:
+    """Simulate the accelerometer on a true kinematic acceleration.
+
+    t_s: uniform simulation times (s), rate at least twice ``spec.output_rate_hz``;
+    a_true: vertical acceleration (T,) or all axes (T, 3), m/s^2, body frame z up.
+    Output samples lie at t_s[0] + k / output_rate_hz (true times); stamps_ns carry clock drift
+    and jitter relative to t_s[0].
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    a = np.asarray(a_true, dtype=float)
+    if a.ndim == 1:
+        a = np.column_stack([np.zeros_like(a), np.zeros_like(a), a])
+    if t_s.ndim != 1 or t_s.size < 2 or a.shape != (t_s.size, 3):
+        raise ValueError(f'measure: t_s (T,) and a_true (T,) or (T, 3), got {t_s.shape}, '
+                         f'{np.shape(a_true)}')
+    fs_in = (t_s.size - 1) / (t_s[-1] - t_s[0])
+    up, down = rate_ratio(fs_in, spec.output_rate_hz)
+    # one independent stream per effect: switching one effect leaves the others unchanged
+    noise_rng, walk_rng, jitter_rng, drop_rng = np.random.default_rng(seed).spawn(4)
+    if spec.noise_density > 0:
+        a = a + noise_rng.normal(0.0, spec.noise_density * np.sqrt(fs_in / 2), a.shape)
+    y = signal.resample_poly(a, up, down, axis=0, window=antialias_fir(spec, fs_in * up),
+                             padtype='line')
+    n = y.shape[0]
+    k = np.arange(n)
+    dt_out = 1.0 / spec.output_rate_hz
+    y[:, 2] += spec.gravity
+    y *= 1.0 + spec.scale_factor
+    y += np.asarray(spec.bias)
+    if spec.bias_rw > 0:
+        y += np.cumsum(walk_rng.normal(0.0, spec.bias_rw * np.sqrt(dt_out), (n, 3)), axis=0)
+    if spec.lsb > 0:  # saturate in ADC codes, so that |output| <= range stays a code
+        full = np.floor(spec.range_mps2 / spec.lsb)
+        y = np.clip(np.rint(y / spec.lsb), -full, full) * spec.lsb
+    else:
+        y = np.clip(y, -spec.range_mps2, spec.range_mps2)
+    elapsed = k * dt_out * (1.0 + 1e-6 * spec.clock_drift_ppm)
+    if spec.stamp_jitter_s > 0:
+        elapsed = elapsed + jitter_rng.normal(0.0, spec.stamp_jitter_s, n)
+    stamps = np.int64(round(t_s[0] * 1e9)) + np.rint(elapsed * 1e9).astype(np.int64)
+    valid = dropout_mask(n, spec, drop_rng)
+    return ImuSamples(stamps, y, valid, t_s[0] + k * dt_out)
