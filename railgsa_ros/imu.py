@@ -139,13 +139,21 @@ def load_imu(path: str | Path) -> ImuSpec:
         raise ConfigError(f'{path}: {exc}') from None
 
 
+def noise_bandwidth_hz(spec: ImuSpec) -> float:
+    """Equivalent noise bandwidth (Hz) of the anti-alias filter: integral of |H(f)|^2 over
+    [0, fs/2] = (fs / 2) sum h^2 (Parseval); nearly independent of the filter's own rate, here
+    four times the output rate."""
+    fs = 4 * spec.output_rate_hz
+    return 0.5 * fs * float(np.sum(antialias_fir(spec, fs) ** 2))
+
+
 def accel_covariance(spec: ImuSpec) -> float:
     """Per-axis variance ((m/s^2)^2) for the REP 145 covariance diagonal.
 
-    White noise over the output bandwidth (noise density^2 * anti-alias cut-off) plus the
-    quantisation variance LSB^2 / 12.
+    White noise over the output bandwidth (noise density^2 * noise bandwidth of the anti-alias
+    filter) plus the quantisation variance LSB^2 / 12.
     """
-    return spec.noise_density ** 2 * spec.antialias_hz + spec.lsb ** 2 / 12
+    return spec.noise_density ** 2 * noise_bandwidth_hz(spec) + spec.lsb ** 2 / 12
 
 
 @dataclass(frozen=True)
