@@ -5,15 +5,18 @@ writes arbitrary standard messages, ``read_messages`` iterates any bag.
 """
 
 from railgsa_ros.bag.reader import (
-                                    ImuStream,
-                                    TopicSummary,
-                                    open_bag,
-                                    read_imu,
-                                    read_messages,
-                                    summarize,
+    ImuStream,
+    TopicData,
+    TopicSummary,
+    open_bag,
+    read_imu,
+    read_messages,
+    read_stamped,
+    summarize,
 )
 from railgsa_ros.bag.run import IMU_TOPIC, ODOM_TOPIC, TRUTH_TOPIC, RunEncoder, write_run
 from railgsa_ros.bag.writer import BagWriter
 
 __all__ = ['IMU_TOPIC', 'ODOM_TOPIC', 'TRUTH_TOPIC', 'BagWriter', 'ImuStream', 'RunEncoder',
-           'TopicSummary', 'open_bag', 'read_imu', 'read_messages', 'summarize', 'write_run']
+           'TopicData', 'TopicSummary', 'open_bag', 'read_imu', 'read_messages', 'read_stamped',
+           'summarize', 'write_run']

@@ -131,6 +131,16 @@ def _read_topics(reader: AnyReader, path: Path,
     return out
 
 
+def read_stamped(path: str | Path, topic: str, msgtype: str) -> TopicData:
+    """Every message of one topic whose type has a fixed layout (``messages.LAYOUTS``: Imu,
+    Odometry, PointStamped, Vector3Stamped) as arrays, e.g. the truth of a simulated bag."""
+    path = Path(path)
+    if msgtype not in LAYOUTS:
+        raise ValueError(f'no fixed layout for {msgtype}; use read_messages')
+    with open_bag(path) as reader:
+        return _read_topics(reader, path, {topic: msgtype})[topic]
+
+
 @dataclass(frozen=True)
 class ImuStream:
     """Accelerometer stream of a bag, in bag (log-time) order.

@@ -40,15 +40,18 @@ class RunEncoder:
     """Serialises slices of a run as Imu, Odometry and PointStamped (truth) CDR messages.
 
     ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance
-    diagonal; 0 = unknown). Odometry samples the run at ``odom_rate_hz`` with pose.position.x =
+    diagonal; 0 = unknown; None = ``run.accel_covariance``). Frame: ``run.frame_id``
+    (default imu_link). Odometry samples the run at ``odom_rate_hz`` with pose.position.x =
     chainage (m) and twist.twist.linear.x = speed (m/s). Truth: point.x = chainage (m),
     point.z = irregularity (m) at every IMU stamp, frame ``track``.
     """
 
-    def __init__(self, run: Any, accel_variance: float, odom_rate_hz: float = 50.0,
-                 frame_id: str = 'imu_link') -> None:
+    def __init__(self, run: Any, accel_variance: float | None = None,
+                 odom_rate_hz: float = 50.0) -> None:
         self.run = run
-        self.frame_id = frame_id
+        self.frame_id = getattr(run, 'frame_id', 'imu_link')
+        if accel_variance is None:
+            accel_variance = getattr(run, 'accel_covariance', 0.0)
         self.odom_rate_hz = float(odom_rate_hz)
         self.stamps_ns = np.asarray(run.stamps_ns, dtype=np.int64)
         self.imu_values = imu_values(run.accel, accel_variance)
@@ -98,14 +101,17 @@ def _mean_rate(stamps_ns: np.ndarray) -> float:
 
 
 def write_run(path: str | Path, run: Any, storage: str = 'mcap', compression: str | None = None,
-              accel_variance: float = 0.0, odom_rate_hz: float = 50.0,
+              accel_variance: float | None = None, odom_rate_hz: float = 50.0,
+              offset_ns: int = 0,
               overwrite: bool = False) -> Path:
     """Write a run as a rosbag2 bag with ``/imu/data``, ``/odom`` and
-    ``/track/irregularity_truth`` (log time = header stamp); returns the bag path."""
+    ``/track/irregularity_truth``; header stamp = log time = run stamp + ``offset_ns``.
+    Returns the bag path."""
     encoder = RunEncoder(run, accel_variance, odom_rate_hz)
     with BagWriter(path, storage, compression, overwrite) as bag:
         topics = encoder.topics()
         for topic, msgtype, offered in topics.values():
             bag.add_topic(topic, msgtype, offered)
-        bag.write_batches({topics[k][0]: batch for k, batch in encoder.encode().items()})
+        batches = encoder.encode(offset_ns=offset_ns)
+        bag.write_batches({topics[k][0]: batch for k, batch in batches.items()})
     return Path(path)
