@@ -23,7 +23,6 @@ from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
 MIN_SIM_RATE_HZ = 2000.0
 POINTS_PER_WAVELENGTH = 20
-MAX_PROFILE_DX_M = 0.05  # grid of the base profile (linearly interpolated to the chainage)
 
 
 @dataclass(frozen=True)
@@ -117,7 +116,9 @@ def run_scenario(profile_spec: str, speed_mps: float | np.ndarray, duration_s: f
     t = np.arange(n_out * q) / fs_sim
     v = speed_at(t, speed_mps, duration_s)
     travel = cumulative_trapezoid(v, t, initial=0.0)
-    dx = min(MAX_PROFILE_DX_M, wavelength_range[0] / POINTS_PER_WAVELENGTH)
+    # profile grid no coarser than the distance per simulation step: the forward model (first-
+    # order hold) then sees the grid profile itself, with no extra interpolation kinks
+    dx = float(np.max(v)) / fs_sim
     profile_seed, imu_seed = (int(child.generate_state(1)[0])
                               for child in np.random.SeedSequence(seed).spawn(2))
     x, u = make_profile(profile_spec, travel[-1] + dx, dx, profile_seed, wavelength_range)
