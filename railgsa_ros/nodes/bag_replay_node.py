@@ -1,0 +1,197 @@
+"""bag_replay_node: plays a rosbag2 bag with its recorded timing as raw CDR, optionally /clock.
+
+Parameters (all fixed at start-up): ``bag_path``, ``rate`` (x real time), ``loop``,
+``start_offset`` and ``duration`` (s of bag time; duration 0 = to the end), ``topics`` (string
+array, empty = all), ``remaps`` (string array of ``FROM:=TO``), ``clock_hz`` (publish
+rosgraph_msgs/Clock on /clock at this wall-clock rate, 0 = off) and ``wait_for_subscribers`` (s to
+wait for every topic to be subscribed before playing, 0 = start at once). Topics whose type this
+ROS installation cannot import are skipped with a warning. The node exits when the bag is played
+(never with ``loop``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+from typing import Any
+
+from builtin_interfaces.msg import Time
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from railgsa_ros.errors import InputError, RailGsaError
+from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.playback.pacing import Pacer
+from railgsa_ros.playback.qos import QosChoice, choose_qos
+from railgsa_ros.playback.schedule import (
+    NS,
+    ClockTick,
+    PlaybackOptions,
+    events,
+    parse_remaps,
+    select_topics,
+    window,
+)
+from railgsa_ros.playback.source import BagSource
+
+NAME = 'bag_replay_node'
+SPECS = (
+    ParamSpec('bag_path', '', 'rosbag2 bag: directory, .mcap or .db3 file', read_only=True),
+    ParamSpec('rate', 1.0, 'playback rate (x real time)', bounds=(1e-3, 1e3), read_only=True),
+    ParamSpec('loop', False, 'replay the window forever', read_only=True),
+    ParamSpec('start_offset', 0.0, 'bag time skipped at the start (s)', bounds=(0.0, 1e9),
+              read_only=True),
+    ParamSpec('duration', 0.0, 'bag time played (s), 0 = to the end', bounds=(0.0, 1e9),
+              read_only=True),
+    ParamSpec('clock_hz', 0.0, '/clock publication rate (Hz of wall time), 0 = no /clock',
+              bounds=(0.0, 1e4), read_only=True),
+    ParamSpec('wait_for_subscribers', 0.0, 'wait up to this long (s) for every topic to have a '
+              'subscriber before playing', bounds=(0.0, 3600.0), read_only=True),
+)
+ARRAYS = {'topics': 'topics to play (empty = all)', 'remaps': 'topic remaps FROM:=TO'}
+#: /clock QoS, as ros2 bag play: RELIABLE, KEEP_LAST 1 (use_sim_time subscribers are BEST_EFFORT).
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def message_class(msgtype: str) -> Any | None:
+    """The rclpy class of ``pkg/msg/Name``, or None when it cannot be imported here."""
+    pkg, _, name = msgtype.rpartition('/')
+    try:
+        return getattr(importlib.import_module(pkg.replace('/', '.')), name)
+    except (ImportError, AttributeError, ValueError):
+        return None
+
+
+def qos_profile(choice: QosChoice) -> QoSProfile:
+    """The rclpy profile of a QosChoice."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=choice.depth,
+        reliability=ReliabilityPolicy.RELIABLE if choice.reliable
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if choice.transient_local
+        else DurabilityPolicy.VOLATILE)
+
+
+class BagReplayNode(Node):
+    """Opens the bag and creates one publisher per playable topic; ``play()`` replays it."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        """Read the parameters and open the bag (InputError/ConfigError naming it on failure)."""
+        super().__init__(NAME, **kwargs)
+        values = declare(self, SPECS)
+        arrays = {name: self.declare_parameter(name, Parameter.Type.STRING_ARRAY,
+                                               ParamSpec(name, '', text).descriptor()).value
+                  or [] for name, text in ARRAYS.items()}
+        if not values['bag_path']:
+            raise InputError('parameter bag_path: no bag given')
+        self.options = PlaybackOptions(
+            rate=values['rate'], loop=values['loop'], start_offset_s=values['start_offset'],
+            duration_s=values['duration'], topics=tuple(arrays['topics']),
+            remaps=parse_remaps(arrays['remaps']), clock_hz=values['clock_hz'])
+        self.wait_s = values['wait_for_subscribers']
+        self.source = BagSource(values['bag_path'])
+        try:
+            self._setup()
+        except RailGsaError:
+            self.source.close()
+            raise
+
+    def _setup(self) -> None:
+        """Choose the topics and window and create the publishers."""
+        topics = select_topics(self.source.topics, self.options.topics)
+        remap = dict(self.options.remaps)
+        self.publishers_by_topic: dict[str, Any] = {}
+        self.topics: list[str] = []
+        for name in topics:
+            info = self.source.topics[name]
+            cls = message_class(info.msgtype)
+            if cls is None:
+                self.get_logger().warning(f'skipping {name}: type {info.msgtype} is not '
+                                          'available in this ROS installation')
+                continue
+            out = remap.get(name, name)
+            self.publishers_by_topic[out] = self.create_publisher(
+                cls, out, qos_profile(choose_qos(info, self.options.rate)))
+            self.topics.append(name)
+        if not self.topics:
+            raise InputError(f'{self.source.path}: no playable topic (types not available)')
+        self.clock_pub = (self.create_publisher(Clock, '/clock', CLOCK_QOS)
+                          if self.options.clock_hz > 0 else None)
+        self.window = window(self.source.start_ns, self.source.end_ns, self.options)
+
+    def _wait_for_subscribers(self) -> None:
+        """Wait up to ``wait_for_subscribers`` s until every topic has a subscriber."""
+        deadline = time.monotonic() + self.wait_s
+        lonely = list(self.publishers_by_topic)
+        while lonely and time.monotonic() < deadline and self.context.ok():
+            lonely = [t for t in lonely
+                      if self.publishers_by_topic[t].get_subscription_count() == 0]
+            time.sleep(0.01)
+        if lonely and self.context.ok():
+            self.get_logger().warning(f'playing without subscribers on {", ".join(lonely)}')
+
+    def play(self) -> int:
+        """Replay until the end (never with loop) or shutdown; returns the messages published."""
+        if self.wait_s > 0:
+            self._wait_for_subscribers()
+        lo, hi = self.window
+        self.get_logger().info(f'playing {self.source.path} ({", ".join(self.topics)}) at '
+                               f'{self.options.rate:g}x from {lo / NS:.3f} s')
+        pacer = Pacer()
+        published = 0
+        schedule = events(lambda: self.source.messages(self.topics, lo, hi), lo, hi, self.options)
+        for event in schedule:
+            if not pacer.wait(event.due_ns, self.context.ok):
+                break
+            if isinstance(event, ClockTick):
+                sec, nanosec = divmod(event.stamp_ns, NS)
+                self.clock_pub.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
+            else:
+                self.publishers_by_topic[event.topic].publish(event.data)
+                published += 1
+        self.get_logger().info(f'published {published} messages; lateness mean '
+                               f'{pacer.late_mean_ns / 1e6:.3f} ms, max '
+                               f'{pacer.late_max_ns / 1e6:.3f} ms')
+        return published
+
+    def destroy_node(self) -> None:
+        """Close the bag, then destroy the node."""
+        self.source.close()
+        super().destroy_node()
+
+
+def run(args: list[str] | None = None, parameters: list[Parameter] | None = None) -> int:
+    """Replay with ROS ``args`` and parameter overrides; 0 when done or interrupted.
+
+    RailGsaError propagates (the caller prints it and exits 2).
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = BagReplayNode(parameter_overrides=parameters or [])
+        node.play()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point: exit 0 when done, 2 with a one-line error for bad input."""
+    try:
+        return run(args)
+    except RailGsaError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())
