@@ -339,3 +339,26 @@ def test_sample_indices_at_odometry_rate() -> None:
     assert 99 <= idx.size <= 100
     assert np.all(np.diff(idx) >= 19) and np.all(np.diff(idx) <= 21)
     assert sample_indices(np.zeros(0, dtype=np.int64), 50.0).size == 0
+
+
+def test_example_bag_matches_its_command(tmp_path: Path) -> None:
+    from railgsa_ros.bag import TRUTH_TOPIC, read_stamped
+    from railgsa_ros.cli.main import main
+
+    bags = Path(__file__).resolve().parents[1] / 'bags'
+    (command,) = [line.split() for line in (bags / 'README.md').read_text().splitlines()
+                  if line.startswith('railgsa simulate ')]
+    argv = command[1:]
+    out = argv.index('--out') + 1
+    original = bags / Path(argv[out]).name
+    assert sum(f.stat().st_size for f in original.iterdir()) < 5e6
+    argv[out] = str(tmp_path / 'again')
+    assert main(argv) == 0
+    old, new = read_imu(original), read_imu(tmp_path / 'again')
+    assert old.accel.shape == (20_000, 3)
+    for field in ('stamps_ns', 'accel', 'covariance', 'odom_stamps_ns', 'speed_mps'):
+        np.testing.assert_array_equal(getattr(old, field), getattr(new, field), err_msg=field)
+    truth_old = read_stamped(original, TRUTH_TOPIC, 'geometry_msgs/msg/PointStamped')
+    truth_new = read_stamped(tmp_path / 'again', TRUTH_TOPIC, 'geometry_msgs/msg/PointStamped')
+    np.testing.assert_array_equal(truth_old.values, truth_new.values)
+    assert np.ptp(truth_old.values[:, 2]) > 4e-3  # the 4 mm dip is in it
