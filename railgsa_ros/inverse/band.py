@@ -1,0 +1,81 @@
+"""EN 13848 wavelength bands as zero-phase FIR filters in time, designed for the current speed.
+
+A band [lambda_min, lambda_max] (m) at speed v (m/s) is the frequency band [v / lambda_max,
+v / lambda_min] (Hz). The band-pass is the analogue Butterworth band-pass BP of order n (the
+low-pass prototype order; 2n poles) run forward and backward, i.e. the real, zero-phase response
+|BP(j w)|^2 = 1 / (1 + ((w^2 - w0^2) / (w B))^(2n)), w0^2 = w_lo w_hi, B = w_hi - w_lo:
+-6 dB at the band edges, 4n-th order roll-off on each side. The FIR taps sample a response on a
+dense FFT grid, are centred (delay D samples) and cut to 2 D + 1 taps where the impulse response
+has decayed below a tolerance; ``truncation_error`` measures what the cut costs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy import fft
+
+from railgsa_ros.errors import ConfigError
+
+BANDS_M = {'d1': (3.0, 25.0), 'd2': (25.0, 70.0)}  # EN 13848 longitudinal level, m
+_DESIGN_PERIODS = 128  # design grid spans this many periods of the lowest band frequency
+
+Response = Callable[[np.ndarray], np.ndarray]
+
+
+def band_edges_hz(band: str, speed_mps: float) -> tuple[float, float]:
+    """Frequency band (Hz) of wavelength band ``band`` ('d1' or 'd2') at speed_mps (m/s)."""
+    if band not in BANDS_M:
+        raise ConfigError(f'band: expected one of {", ".join(BANDS_M)} or none, got {band!r}')
+    lmin, lmax = BANDS_M[band]
+    return speed_mps / lmax, speed_mps / lmin
+
+
+def bandpass_power(f_hz: np.ndarray, f_lo: float, f_hi: float, order: int) -> np.ndarray:
+    """|BP(j 2 pi f)|^2 of the analogue Butterworth band-pass of prototype order ``order``."""
+    f = np.abs(np.asarray(f_hz, dtype=float))
+    with np.errstate(divide='ignore'):
+        x = np.where(f > 0, (f ** 2 - f_lo * f_hi) / (f * (f_hi - f_lo)), np.inf)
+    return 1.0 / (1.0 + x ** (2 * order))
+
+
+def design_grid(rate_hz: float, f_lo: float) -> np.ndarray:
+    """Frequencies (Hz) of a real-FFT design grid long enough for the band's impulse response."""
+    n = 1 << int(np.ceil(np.log2(_DESIGN_PERIODS * rate_hz / f_lo)))
+    return fft.rfftfreq(n, 1.0 / rate_hz)
+
+
+def impulse_response(response: np.ndarray) -> np.ndarray:
+    """Zero-phase (circular, index 0 = lag 0) impulse response of a response on a design grid."""
+    n = 2 * (response.shape[-1] - 1)
+    return fft.irfft(response, n=n, axis=-1)
+
+
+def half_length(response: np.ndarray, tol: float) -> int:
+    """Smallest D such that taps beyond lag +-D hold < tol of the impulse response's L1 norm."""
+    h = np.abs(np.atleast_2d(impulse_response(response)))
+    n = h.shape[-1]
+    half = n // 2
+    lag = np.minimum(np.arange(n), n - np.arange(n))
+    mass = np.zeros((h.shape[0], half + 1))
+    np.add.at(mass, (slice(None), lag), h)  # |h| by |lag|, both sides together
+    tail = np.cumsum(mass[:, ::-1], axis=-1)[:, ::-1] / mass.sum(-1, keepdims=True)
+    beyond = np.append(tail[:, 1:], np.zeros((tail.shape[0], 1)), axis=-1)  # mass at lags > D
+    return int(max(np.argmax(row < tol) for row in beyond))
+
+
+def fir_taps(response: np.ndarray, d: int) -> np.ndarray:
+    """Causal taps (..., 2 d + 1) of delay d: tap j is the impulse response at lag j - d."""
+    return np.roll(impulse_response(response), d, axis=-1)[..., :2 * d + 1]
+
+
+def truncation_error(taps: np.ndarray, response: np.ndarray) -> float:
+    """Largest |H_fir - H| on the design grid, relative to the largest |H| (worst row)."""
+    n = 2 * (response.shape[-1] - 1)
+    d = (taps.shape[-1] - 1) // 2
+    circ = np.zeros((*taps.shape[:-1], n))
+    circ[..., :2 * d + 1] = taps
+    circ = np.roll(circ, -d, axis=-1)
+    return float(np.max(np.abs(fft.rfft(circ, axis=-1) - response))
+                 / np.max(np.abs(response)))

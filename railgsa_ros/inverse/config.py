@@ -1,0 +1,134 @@
+"""Inversion pipeline parameters: defaults, units, ranges and validation (no ROS import).
+
+The same names are the ROS parameters of ``irregularity_node`` (``config/irregularity.yaml``);
+each field's metadata gives its description, inclusive numeric bounds or string choices so that
+the node can declare descriptors from it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+import math
+from pathlib import Path
+from typing import Any
+
+from railgsa_ros.config import load_yaml, ros_parameters
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.inverse.feedback import UNSUPPORTED, check_gain
+
+NODE_NAME = 'irregularity_node'
+METHODS = ('spectral', 'feedback', 'kalman')
+AXES = ('z', '-z', 'x', '-x', 'y', '-y')
+INF = math.inf
+
+
+def _p(default: Any, doc: str, bounds: tuple[float, float] | None = None,
+       choices: tuple[str, ...] = ()) -> Any:
+    return field(default=default, metadata={'doc': doc, 'bounds': bounds, 'choices': choices})
+
+
+@dataclass(frozen=True)
+class InversionConfig:
+    """Validated pipeline parameters (SI units); see docs/inversion.md for the full table."""
+
+    method: str = _p('spectral', 'inversion method', choices=METHODS)
+    band: str = _p('d1', 'EN 13848 wavelength band: d1 3-25 m, d2 25-70 m, none (paper mode)',
+                   choices=('d1', 'd2', 'none'))
+    gain: float = _p(1000.0, 'feedback gain K^c of Eq. 7, s^2 (m of u per m/s^2), > 0', (0.0, INF))
+    band_order: int = _p(2, 'Butterworth band-pass prototype order n (run forward-backward)',
+                         (1, 8))
+    fir_tolerance: float = _p(1e-5, 'band FIR cut where the impulse response L1 tail < this',
+                              (1e-9, 1e-2))
+    rate_hz: float = _p(1000.0, 'nominal IMU sample rate, Hz', (1.0, 1e5))
+    speed_mps: float = _p(20.0, 'speed used when no odometry is given, m/s', (0.0, 200.0))
+    min_design_speed_mps: float = _p(10.0, 'band held at this speed below it; sets delay, m/s',
+                                     (0.5, 200.0))
+    speed_tolerance: float = _p(0.02, 'relative speed change that triggers a filter redesign',
+                                (1e-4, 1.0))
+    accel_axis: str = _p('z', 'IMU axis (with sign) pointing up in the car body', choices=AXES)
+    gravity_mps2: float = _p(9.80665, 'gravity subtracted from the vertical axis, m/s^2',
+                             (0.0, 20.0))
+    bias_time_constant_s: float = _p(0.0, 'band none: subtract a running-mean bias with this '
+                                          'time constant, s (0 = off)', (0.0, 1e4))
+    taper_s: float = _p(0.5, 'raised-cosine fade-in after a (re)start and fade-out at flush, s',
+                        (0.0, 60.0))
+    noise_std_mps2: float = _p(5e-3, 'kalman: accel noise std when the IMU covariance is '
+                                     'absent or unknown, m/s^2', (1e-9, 10.0))
+    track_spectrum_av: float = _p(4.032e-7, 'kalman: German spectrum amplitude A_v, m rad '
+                                            '(4.032e-7 low, 1.080e-6 high)', (1e-12, 1e-3))
+    smoother: bool = _p(False, 'kalman: offline RTS smoother (outputs at flush)')
+    gap_factor: float = _p(3.0, 'a step above this many nominal periods is a gap', (1.0, 1e6))
+    gap_policy: str = _p('reset', 'gap handling', choices=('reset', 'bridge'))
+    max_bridge_s: float = _p(0.05, 'bridge policy: longest gap interpolated, s', (0.0, 10.0))
+    saturation_mps2: float = _p(78.4532, 'accelerometer range, m/s^2 (0 = no check)',
+                                (0.0, 1e4))
+    saturation_margin_mps2: float = _p(0.01, 'samples within this of the range are saturated',
+                                       (0.0, 1e3))
+    frame_id: str = _p('imu_link', "expected IMU frame_id ('' accepts any)")
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            object.__setattr__(self, f.name, _check(f.name, value, f.default, f.metadata))
+        if self.method == 'spectral' and self.band == 'none':
+            raise ConfigError('band: the spectral method needs a band (d1 or d2): the exact '
+                              'inverse has a double pole at s = 0')
+        if self.smoother and self.method != 'kalman':
+            raise ConfigError('smoother: the RTS smoother belongs to the kalman method')
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], source: str = 'parameters'
+                     ) -> InversionConfig:
+        """Defaults overridden by ``data``; unknown names are a ConfigError naming ``source``."""
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ConfigError(f'{source}: unknown parameter(s) {", ".join(unknown)}')
+        try:
+            return cls(**dict(data))
+        except ConfigError as exc:
+            raise ConfigError(f'{source}: {exc}') from None
+
+    def with_(self, **changes: Any) -> InversionConfig:
+        """A validated copy with some fields changed."""
+        return replace(self, **changes)
+
+
+def _check(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
+    """Coerce ``value`` to the type of ``default`` and check choices/bounds."""
+    if name == 'method' and value in ('analytical', 'flatness'):
+        raise ConfigError(f'method: {UNSUPPORTED[value]}')
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f'{name}: expected true or false, got {value!r}')
+        return value
+    if isinstance(default, str):
+        if not isinstance(value, str) or (meta['choices'] and value not in meta['choices']):
+            allowed = ', '.join(meta['choices']) or 'a string'
+            raise ConfigError(f'{name}: expected {allowed}, got {value!r}')
+        return value
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f'{name}: expected a number, got {value!r}') from None
+    if isinstance(value, bool) or not math.isfinite(number):
+        raise ConfigError(f'{name}: expected a finite number, got {value!r}')
+    if name == 'gain':
+        return check_gain(number)
+    low, high = meta['bounds']
+    if not low <= number <= high:
+        raise ConfigError(f'{name}: {value!r} is outside [{low:g}, {high:g}]')
+    if isinstance(default, int):
+        if number != int(number):
+            raise ConfigError(f'{name}: expected an integer, got {value!r}')
+        return int(number)
+    return number
+
+
+def load_config(path: str | Path) -> InversionConfig:
+    """Read ``irregularity_node: ros__parameters:`` of a params file; other keys are ignored."""
+    params = ros_parameters(load_yaml(path), NODE_NAME)
+    keep = {f.name for f in fields(InversionConfig)}
+    return InversionConfig.from_mapping({k: v for k, v in params.items() if k in keep},
+                                        source=str(path))

@@ -1,0 +1,328 @@
+"""The streaming inversion pipeline shared by ``irregularity_node`` and ``railgsa invert``.
+
+Per sample: sanitise -> chainage (trapezoidal integral of speed over the stamps) -> vertical
+acceleration minus gravity (optionally minus a running-mean bias) -> raised-cosine fade-in after
+each (re)start -> method -> band FIR with a fixed delay of D samples. The output for sample k is
+emitted when sample k + D has arrived and carries sample k's stamp and chainage.
+
+Methods (all run a bank of P parameter sets):
+- ``spectral``: the exact inverse 1/G(j w) folded into the band FIR, |BP|^2 / G: one FIR stage.
+- ``feedback``: Eq. 7 (exact FOH), then the band FIR; that order lets the band remove the drift of
+  the marginally damped slow pole pair (+-j / sqrt(K)) and costs one shared FIR design.
+- ``kalman``: the steady-state Kalman filter (or, offline, the RTS smoother), then the band FIR.
+
+Band designs follow the speed at the output sample, are held at ``min_design_speed_mps`` below it
+and are swapped every ``switch_period`` samples when the speed moved by more than
+``speed_tolerance``; D is fixed by the design at the minimum speed (the longest impulse response).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+from scipy.signal import lfilter
+
+from railgsa_ros.inverse.band import (
+    band_edges_hz,
+    bandpass_power,
+    design_grid,
+    fir_taps,
+    half_length,
+    truncation_error,
+)
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.convolve import PartitionedFir
+from railgsa_ros.inverse.feedback import FeedbackInverse, Stability
+from railgsa_ros.inverse.kalman import KalmanInverse
+from railgsa_ros.inverse.sanitize import Clean, InputSanitizer
+from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
+
+NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
+
+
+@dataclass(frozen=True)
+class Output:
+    """Reconstruction: stamps_ns (K,) int64 of the IMU samples, chainage_m (K,), u_m (K,) in m,
+    or (P, K) for a bank of parameter sets."""
+
+    stamps_ns: np.ndarray
+    chainage_m: np.ndarray
+    u_m: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.size)
+
+
+def vertical(accel: np.ndarray, axis: str) -> np.ndarray:
+    """Upward specific force (m/s^2, +g at rest) from accel (T, 3) and an axis ('z', '-y', ...)."""
+    col = 'xyz'.index(axis[-1])
+    sign = -1.0 if axis.startswith('-') else 1.0
+    return sign * np.asarray(accel, dtype=float)[:, col]
+
+
+def taper(n: int, length: int) -> np.ndarray:
+    """Raised-cosine ramp 0 -> 1 over ``length`` samples evaluated at sample indices n."""
+    if length <= 0:
+        return np.ones_like(n, dtype=float)
+    return np.where(n < length, 0.5 - 0.5 * np.cos(np.pi * np.minimum(n, length) / length), 1.0)
+
+
+class _Meta:
+    """Per-sample metadata waiting in the delay line: stamps, chainage, speed, emit flag."""
+
+    def __init__(self) -> None:
+        self.stamps = np.zeros(0, np.int64)
+        self.chainage = np.zeros(0)
+        self.speed = np.zeros(0)
+        self.emit = np.zeros(0, bool)
+
+    def extend(self, stamps: np.ndarray, chainage: np.ndarray, speed: np.ndarray,
+               emit: np.ndarray) -> None:
+        self.stamps = np.concatenate([self.stamps, stamps])
+        self.chainage = np.concatenate([self.chainage, chainage])
+        self.speed = np.concatenate([self.speed, speed])
+        self.emit = np.concatenate([self.emit, emit])
+
+    def pop(self, count: int) -> tuple[np.ndarray, ...]:
+        out = (self.stamps[:count], self.chainage[:count], self.emit[:count])
+        self.stamps, self.chainage = self.stamps[count:], self.chainage[count:]
+        self.speed, self.emit = self.speed[count:], self.emit[count:]
+        return out
+
+
+class InversionPipeline:
+    """Streaming irregularity reconstruction; see the module docstring and docs/inversion.md.
+
+    ``vehicle``: VehicleParams, theta (5,) or a bank theta (P, 5); ``noise_variance``: IMU
+    accelerometer variance ((m/s^2)^2) for the Kalman method, else ``config.noise_std_mps2``^2.
+    """
+
+    def __init__(self, config: InversionConfig | None = None,
+                 vehicle: VehicleParams | np.ndarray | None = None,
+                 noise_variance: float | None = None) -> None:
+        cfg = self.config = config if config is not None else InversionConfig()
+        theta = as_theta(vehicle if vehicle is not None else VehicleParams())
+        self._squeeze = theta.ndim == 1
+        self.theta = np.atleast_2d(theta)
+        self.dt = 1.0 / cfg.rate_hz
+        self.sanitizer = InputSanitizer(cfg.rate_hz, cfg.gap_factor, cfg.gap_policy,
+                                        cfg.max_bridge_s, cfg.saturation_mps2,
+                                        cfg.saturation_margin_mps2, cfg.frame_id)
+        self._counters: Counter[str] = Counter()
+        self.stability: Stability | None = None
+        self._stage: FeedbackInverse | KalmanInverse | None = None
+        if cfg.method == 'feedback':
+            self._stage = FeedbackInverse(self.theta, cfg.gain, self.dt)
+            self.stability = self._stage.stability
+        elif cfg.method == 'kalman':
+            var = cfg.noise_std_mps2 ** 2 if noise_variance is None else float(noise_variance)
+            self._stage = KalmanInverse(self.theta, cfg.track_spectrum_av, var, self.dt,
+                                        cfg.speed_mps, cfg.speed_tolerance,
+                                        cfg.min_design_speed_mps)
+        self._fir: PartitionedFir | None = None
+        self.delay_samples = 0
+        self.truncation_error = 0.0
+        self.switch_period = NO_BAND_SWITCH
+        if cfg.band != 'none':
+            vmin = cfg.min_design_speed_mps
+            self._grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, vmin)[0])
+            response = self._response(vmin)
+            self.delay_samples = half_length(response, cfg.fir_tolerance)
+            taps = fir_taps(response, self.delay_samples)
+            self.truncation_error = truncation_error(taps, response)
+            channels = self.theta.shape[0]
+            self._fir = PartitionedFir(taps, channels)
+            self.switch_period = self._fir.switch_period
+            self._design_speed = vmin
+        self._chain: tuple[int, float, float] | None = None  # last stamp, chainage, speed
+        self._offline: list[tuple[np.ndarray, ...]] = []
+        self._start_segment()
+
+    # ----------------------------------------------------------------- public interface
+    @property
+    def counters(self) -> dict[str, int]:
+        """Counts by reason: rejected samples (nan, wrong_frame, saturated, out_of_order,
+        duplicate), gap, reset, bridged, accepted, emitted, redesign."""
+        return dict(self.sanitizer.counters + self._counters)
+
+    @property
+    def stability_margin(self) -> float:
+        """Decay rate (1/s) of the least-damped mode of the recursive stage; inf for spectral."""
+        if self.stability is not None:
+            return self.stability.margin
+        if isinstance(self._stage, KalmanInverse):
+            return -np.log(self._stage.design.spectral_radius) / self.dt
+        return float('inf')
+
+    def push(self, stamps_ns: np.ndarray, acc_z: np.ndarray,
+             speed_mps: np.ndarray | float | None = None,
+             frame_ids: np.ndarray | None = None) -> Output:
+        """Feed samples: stamps (T,) int64 ns, upward specific force (T,) m/s^2 (+g at rest, see
+        ``vertical``), speed (T,) or scalar m/s (None: ``config.speed_mps``), frame ids (T,)."""
+        speed = self.config.speed_mps if speed_mps is None else speed_mps
+        clean = self.sanitizer.process(stamps_ns, acc_z, speed, frame_ids)
+        cuts = np.flatnonzero(clean.reset_before)
+        outs = []
+        for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [clean.accel.size]]),
+                          strict=True):
+            if lo in cuts:
+                outs.append(self._end_segment())
+            if hi > lo:
+                outs.append(self._run(clean, slice(lo, hi)))
+        return self._public(self._join(outs))
+
+    def flush(self) -> Output:
+        """End an offline stream: pad D samples (the last acceleration faded out over
+        ``taper_s``, then zeros) and emit every pending sample; the next push starts afresh."""
+        out = self._end_segment()
+        self.sanitizer.reset()
+        return self._public(out)
+
+    def reset(self, reason: str = 'request') -> Output:
+        """Restart the filters (e.g. after a time jump); returns the flushed pending outputs."""
+        self._counters[f'reset_{reason}'] += 1
+        return self.flush()
+
+    # ----------------------------------------------------------------- internals
+    def _response(self, speed: float) -> np.ndarray:
+        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in."""
+        cfg = self.config
+        lo, hi = band_edges_hz(cfg.band, max(speed, cfg.min_design_speed_mps))
+        bp = bandpass_power(self._grid, lo, hi, cfg.band_order)[None]
+        if cfg.method != 'spectral':
+            return bp
+        g = frequency_response(self.theta, 2j * np.pi * self._grid)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            return np.where(bp > 0, bp / g, 0.0)
+
+    def _start_segment(self) -> None:
+        """Zero the filters and the segment's sample counter."""
+        self._n = 0
+        self._meta = _Meta()
+        self._meta_start = 0  # segment index of the oldest sample in the delay line
+        self._last_a = 0.0
+        self._bias = None
+        if self._stage is not None:
+            self._stage.reset()
+        if self._fir is not None:
+            self._fir.reset()
+
+    def _run(self, clean: Clean, sl: slice) -> Output:
+        """Process clean samples of one segment."""
+        cfg = self.config
+        stamps, speed = clean.stamps_ns[sl], clean.speed[sl]
+        chain = self._chainage(stamps, speed)
+        a_s = clean.accel[sl] - cfg.gravity_mps2
+        if cfg.band == 'none' and cfg.bias_time_constant_s > 0:
+            a_s = self._remove_bias(a_s)
+        n0 = self._n + sum(x[0].size for x in self._offline)
+        a_s = a_s * taper(n0 + np.arange(a_s.size), round(cfg.taper_s * cfg.rate_hz))
+        self._last_a = float(a_s[-1])
+        emit = ~clean.synthetic[sl]
+        if cfg.smoother:
+            self._offline.append((a_s, stamps, chain, speed, emit))
+            return self._join([])
+        return self._advance(a_s, stamps, chain, speed, emit)
+
+    def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """Trapezoidal integral of speed over the stamps, continued across calls (m)."""
+        t0, c0, v0 = self._chain if self._chain is not None else (stamps[0], 0.0, speed[0])
+        t = np.concatenate([[t0], stamps])
+        v = np.concatenate([[v0], speed])
+        chain = c0 + np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t) * 1e-9)
+        self._chain = (int(stamps[-1]), float(chain[-1]), float(speed[-1]))
+        return chain
+
+    def _remove_bias(self, a_s: np.ndarray) -> np.ndarray:
+        """Subtract an exponential running mean with time constant bias_time_constant_s."""
+        alpha = 1.0 - np.exp(-self.dt / self.config.bias_time_constant_s)
+        if self._bias is None:
+            self._bias = np.array([(1.0 - alpha) * a_s[0]])  # start at the first sample
+        mean, self._bias = lfilter([alpha], [1.0, alpha - 1.0], a_s, zi=self._bias)
+        return a_s - mean
+
+    def _advance(self, a_s: np.ndarray, stamps: np.ndarray, chain: np.ndarray,
+                 speed: np.ndarray, emit: np.ndarray, u: np.ndarray | None = None) -> Output:
+        """Method + band over one segment piece, split where filter redesigns may happen."""
+        self._meta.extend(stamps, chain, speed, emit)
+        per = self.switch_period
+        n0 = self._n
+        bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per) - n0
+        edges = np.unique(np.concatenate([[0], bounds, [a_s.size]]))
+        outs = []
+        for lo, hi in pairwise(edges):
+            if (n0 + lo) % per == 0:
+                self._redesign(n0 + lo)
+            x = u[:, lo:hi] if u is not None else (
+                a_s[lo:hi] if self._stage is None else self._stage.process(a_s[lo:hi]))
+            outs.append(self._band(x))
+        return self._join(outs)
+
+    def _speed_at(self, n: int) -> float:
+        """Speed (m/s) of segment sample n, which is still in the delay line."""
+        return float(self._meta.speed[n - self._meta_start])
+
+    def _redesign(self, n: int) -> None:
+        """At a switch boundary: redesign the band for the speed at the output sample n - D and
+        the Kalman gains for the speed at the newest sample n."""
+        cfg = self.config
+        if isinstance(self._stage, KalmanInverse) and self._stage.set_speed(self._speed_at(n)):
+            self._counters['redesign'] += 1
+        if self._fir is None:
+            return
+        v = max(abs(self._speed_at(max(n - self.delay_samples, 0))), cfg.min_design_speed_mps)
+        if abs(v - self._design_speed) > cfg.speed_tolerance * self._design_speed:
+            self._fir.set_taps(fir_taps(self._response(v), self.delay_samples))
+            self._design_speed = v
+            self._counters['redesign'] += 1
+
+    def _band(self, x: np.ndarray) -> Output:
+        """Band FIR (or pass-through) and the delay line; returns the emitted samples."""
+        t_len = x.shape[-1]
+        z = np.atleast_2d(x) if self._fir is None else self._fir.process(x)
+        d = self.delay_samples
+        n_old, self._n = self._n, self._n + t_len
+        count = max(0, self._n - d) - max(0, n_old - d)
+        stamps, chain, emit = self._meta.pop(count)
+        self._meta_start += count
+        u = z[:, t_len - count:][:, emit] if count else z[:, :0]
+        self._counters['emitted'] += int(emit.sum())
+        return Output(stamps[emit], chain[emit], u)
+
+    def _end_segment(self) -> Output:
+        """Pad the segment with a faded-out acceleration, emit what is pending, restart."""
+        out = []
+        d = self.delay_samples
+        cfg = self.config
+        pending = self._n + sum(x[0].size for x in self._offline)
+        if pending:
+            fade = 1.0 - taper(np.arange(d), round(cfg.taper_s * cfg.rate_hz))
+            pad = (self._last_a * fade, np.zeros(d, np.int64), np.zeros(d), np.zeros(d),
+                   np.zeros(d, bool))
+            if cfg.smoother:
+                a_s, stamps, chain, speed, emit = (np.concatenate(parts) for parts in
+                                                   zip(*self._offline, pad, strict=True))
+                self._offline = []
+                if isinstance(self._stage, KalmanInverse):
+                    self._stage.set_speed(float(np.median(speed[emit])))
+                    out.append(self._advance(a_s, stamps, chain, speed, emit,
+                                             u=self._stage.smooth(a_s)))
+            else:
+                out.append(self._advance(*pad))
+        self._start_segment()
+        return self._join(out)
+
+    def _join(self, outs: list[Output]) -> Output:
+        """Concatenate internal outputs (u always (P, K))."""
+        p = self.theta.shape[0]
+        stamps = np.concatenate([o.stamps_ns for o in outs] + [np.zeros(0, np.int64)])
+        chain = np.concatenate([o.chainage_m for o in outs] + [np.zeros(0)])
+        u = np.concatenate([o.u_m for o in outs] + [np.zeros((p, 0))], axis=1)
+        return Output(stamps, chain, u)
+
+    def _public(self, out: Output) -> Output:
+        """u as (K,) for a single parameter set, (P, K) for a bank."""
+        return Output(out.stamps_ns, out.chainage_m, out.u_m[0] if self._squeeze else out.u_m)

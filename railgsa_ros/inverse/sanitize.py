@@ -1,0 +1,123 @@
+"""Input sanitiser: classify every IMU sample before inversion; never raises on data.
+
+Rejected samples are counted by reason: ``nan`` (non-finite acceleration, speed or stamp),
+``wrong_frame``, ``saturated`` (|a| >= range - margin), ``out_of_order`` and ``duplicate`` (stamp
+below or equal to the newest accepted one). Accepted samples more than ``gap_factor`` nominal
+periods apart form a ``gap``: with policy ``reset`` the pipeline restarts its filters there; with
+``bridge`` a gap up to ``max_bridge_s`` is filled with synthetic samples on the nominal period,
+linearly interpolated (they produce no output), and a longer gap resets.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+REASONS = ('nan', 'wrong_frame', 'saturated', 'out_of_order', 'duplicate')
+
+
+def frame_mask(frame_ids: np.ndarray | None, expected: str) -> np.ndarray | None:
+    """True where a sample's frame_id is ``expected``; None when unchecked (no ids or '')."""
+    if frame_ids is None or not expected:
+        return None
+    return np.asarray(frame_ids).astype(str) == expected
+
+
+@dataclass(frozen=True)
+class Clean:
+    """Samples to invert: stamps_ns (N,) int64, accel (N,) m/s^2, speed (N,) m/s, synthetic (N,)
+    (bridged, no output) and reset_before (N,) (restart the filters before this sample)."""
+
+    stamps_ns: np.ndarray
+    accel: np.ndarray
+    speed: np.ndarray
+    synthetic: np.ndarray
+    reset_before: np.ndarray
+
+
+class InputSanitizer:
+    """Streaming classifier; ``counters`` holds rejected counts by reason plus gaps and resets."""
+
+    def __init__(self, rate_hz: float, gap_factor: float = 3.0, gap_policy: str = 'reset',
+                 max_bridge_s: float = 0.05, saturation_mps2: float = 0.0,
+                 saturation_margin_mps2: float = 0.0, frame_id: str = '') -> None:
+        self.period_ns = 1e9 / rate_hz
+        self.gap_ns = gap_factor * self.period_ns
+        self.gap_policy = gap_policy
+        self.max_bridge_ns = max_bridge_s * 1e9
+        self.limit = saturation_mps2 - saturation_margin_mps2 if saturation_mps2 > 0 else np.inf
+        self.frame_id = frame_id
+        self.counters: Counter[str] = Counter()
+        self._last: tuple[int, float, float] | None = None  # stamp, accel, speed of last accepted
+
+    def reset(self) -> None:
+        """Forget the last accepted sample (the next one starts a new stream)."""
+        self._last = None
+
+    def process(self, stamps_ns: np.ndarray, accel: np.ndarray, speed: np.ndarray,
+                frame_ids: np.ndarray | None = None) -> Clean:
+        """Classify a chunk (stamps int64 ns, vertical accel m/s^2, speed m/s, optional ids)."""
+        stamps = np.asarray(stamps_ns, dtype=np.int64)
+        accel = np.asarray(accel, dtype=float)
+        speed = np.broadcast_to(np.asarray(speed, dtype=float), accel.shape)
+        finite = np.isfinite(accel) & np.isfinite(speed)
+        ok = finite.copy()
+        frames = frame_mask(frame_ids, self.frame_id)
+        wrong = np.zeros_like(ok) if frames is None else ok & ~frames
+        ok &= ~wrong
+        sat = ok & (np.abs(np.where(finite, accel, 0.0)) >= self.limit)
+        ok &= ~sat
+        idx = np.flatnonzero(ok)
+        last = self._last[0] if self._last is not None else np.iinfo(np.int64).min
+        prev = np.maximum.accumulate(np.concatenate([[last], stamps[idx]]))[:-1]
+        dup, ooo = stamps[idx] == prev, stamps[idx] < prev
+        idx = idx[~(dup | ooo)]
+        self.counters.update({'nan': int(np.sum(~finite)), 'wrong_frame': int(wrong.sum()),
+                              'saturated': int(sat.sum()), 'duplicate': int(dup.sum()),
+                              'out_of_order': int(ooo.sum()), 'accepted': idx.size})
+        return self._gaps(stamps[idx], accel[idx], speed[idx])
+
+    def _gaps(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray) -> Clean:
+        """Mark gaps among accepted samples; bridge the short ones when the policy says so."""
+        n = stamps.size
+        reset = np.zeros(n, bool)
+        if n == 0:
+            return Clean(stamps, accel, speed, reset.copy(), reset)
+        if self._last is None:
+            prev_t, prev_a, prev_v = stamps[0], accel[0], speed[0]
+        else:
+            prev_t, prev_a, prev_v = self._last
+        self._last = (int(stamps[-1]), float(accel[-1]), float(speed[-1]))
+        all_t = np.concatenate([[prev_t], stamps])
+        all_a, all_v = np.concatenate([[prev_a], accel]), np.concatenate([[prev_v], speed])
+        dt = np.diff(all_t).astype(float)
+        gaps = np.flatnonzero(dt > self.gap_ns)
+        self.counters['gap'] += gaps.size
+        if gaps.size == 0:
+            return Clean(stamps, accel, speed, reset.copy(), reset)
+        bridge = (dt[gaps] <= self.max_bridge_ns) if self.gap_policy == 'bridge' else \
+            np.zeros(gaps.size, bool)
+        reset[gaps[~bridge]] = True
+        self.counters['reset'] += int((~bridge).sum())
+        # synthetic samples on the nominal period inside each bridged gap, interpolated
+        n_syn = np.where(bridge, np.rint(dt[gaps] / self.period_ns).astype(int) - 1, 0)
+        n_syn = np.maximum(n_syn, 0)
+        self.counters['bridged'] += int(n_syn.sum())
+        which = np.repeat(gaps, n_syn)
+        frac = (np.arange(n_syn.sum()) - np.repeat(np.cumsum(n_syn) - n_syn, n_syn) + 1) \
+            / np.repeat(n_syn + 1, n_syn)
+        syn_t = all_t[which] + np.rint(frac * dt[which]).astype(np.int64)
+        syn_a = all_a[which] + frac * (all_a[which + 1] - all_a[which])
+        syn_v = all_v[which] + frac * (all_v[which + 1] - all_v[which])
+        # insert before real sample `which` (index into the chunk)
+        pos = np.insert(np.arange(n), np.repeat(gaps, n_syn), -1)
+        real = pos >= 0
+        out_t = np.empty(pos.size, np.int64)
+        out_a, out_v = np.empty(pos.size), np.empty(pos.size)
+        out_t[real], out_a[real], out_v[real] = stamps, accel, speed
+        out_t[~real], out_a[~real], out_v[~real] = syn_t, syn_a, syn_v
+        out_reset = np.zeros(pos.size, bool)
+        out_reset[real] = reset
+        return Clean(out_t, out_a, out_v, ~real, out_reset)
