@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from railgsa_ros.lti import StateSpaceBank, discretize_foh
-from railgsa_ros.vehicle import VehicleParams, as_theta, state_space
+from railgsa_ros.vehicle import VehicleParams, as_theta, feedthrough, state_space
 
 
 def vehicle_bank(params: VehicleParams | np.ndarray, dt: float,
@@ -22,7 +22,7 @@ def vehicle_bank(params: VehicleParams | np.ndarray, dt: float,
     theta = np.atleast_2d(as_theta(params))
     a, b, c_s, c_us = state_space(theta)
     c = np.concatenate([c_s, c_us], axis=-2)
-    d = np.zeros(c.shape[:-1] + (1,))
+    d = np.concatenate(feedthrough(theta), axis=-2)
     return StateSpaceBank(discretize_foh(a, b, c, d, dt), x0=x0)
 
 

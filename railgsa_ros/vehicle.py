@@ -1,4 +1,4 @@
-"""Quarter-vehicle model of Schenkendorf & Groos (Eq. 1-4, Table 1), vectorised over parameter sets.
+"""Quarter-vehicle model of Schenkendorf & Groos (Eq. 1-4, Table 1), vectorised over parameters.
 
 State x = [v_s, v_us, x_s, x_us] (m/s, m/s, m, m); input u = vertical track irregularity under the
 wheel (m, +z up); outputs are the sprung (car-body) and unsprung accelerations (m/s^2).
@@ -9,9 +9,10 @@ parameter sets are evaluated at once; a :class:`VehicleParams` converts to it wi
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +62,7 @@ class VehicleParams:
         return asdict(self)
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> 'VehicleParams':
+    def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> VehicleParams:
         """Build from a mapping with every field present; unknown or missing keys are errors."""
         if not isinstance(data, Mapping):
             raise ConfigError(f'{source}: expected a mapping of {", ".join(PARAM_NAMES)}')
@@ -102,7 +103,8 @@ def as_theta(params: VehicleParams | np.ndarray | Mapping[str, float]) -> np.nda
 def state_space(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, ...]:
     """Return (A, B, C_s, C_us) of Eq. 2: shapes (..., 4, 4), (..., 4, 1), (..., 1, 4) twice.
 
-    C_s maps the state to the sprung acceleration, C_us to the unsprung one; D = 0 for both.
+    C_s maps the state to the sprung acceleration (no feedthrough), C_us to the unsprung one,
+    whose feedthrough k_us / m_us comes from ``feedthrough``.
     """
     m_s, m_us, k_s, k_us, c = np.moveaxis(as_theta(params), -1, 0)
     zero, one = np.zeros_like(m_s), np.ones_like(m_s)
@@ -115,11 +117,20 @@ def state_space(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, ...]:
     return a, b, a[..., 0:1, :], a[..., 1:2, :]
 
 
+def feedthrough(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(D_s, D_us), shapes (..., 1, 1): 0 for the sprung output, k_us / m_us (1/s^2) for the
+    unsprung one (the wheel acceleration responds directly to the irregularity)."""
+    theta = as_theta(params)
+    d_us = (theta[..., 3] / theta[..., 1])[..., None, None]
+    return np.zeros_like(d_us), d_us
+
+
 def tf_polynomials(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, ...]:
     """Coefficients, highest power first, of G_s = num_s/den and G_us = num_us/den (Eq. 3).
 
     Derived by hand from Eq. 1 (exact, no ill-conditioned ss2tf):
-    den    = m_s m_us s^4 + c (m_s + m_us) s^3 + (k_s (m_s + m_us) + k_us m_s) s^2 + c k_us s + k_s k_us
+    den    = m_s m_us s^4 + c (m_s + m_us) s^3 + (k_s (m_s + m_us) + k_us m_s) s^2
+             + c k_us s + k_s k_us
     num_s  = k_us (c s + k_s) s^2
     num_us = k_us (m_s s^2 + c s + k_s) s^2
     All three are divided by m_s m_us so that den is monic. Shapes (..., 5).
@@ -136,7 +147,7 @@ def tf_polynomials(params: VehicleParams | np.ndarray) -> tuple[np.ndarray, ...]
 
 def frequency_response(params: VehicleParams | np.ndarray, s: np.ndarray,
                        output: str = 'sprung') -> np.ndarray:
-    """G(s) for complex ``s`` (rad/s): shape broadcast(theta[..., 0], s); output sprung|unsprung."""
+    """G(s) for complex ``s`` (rad/s), shape theta.shape[:-1] + s.shape; output sprung|unsprung."""
     num_s, num_us, den = tf_polynomials(params)
     num = {'sprung': num_s, 'unsprung': num_us}[output]
     s = np.asarray(s)

@@ -10,6 +10,7 @@ from railgsa_ros.errors import ConfigError
 from railgsa_ros.vehicle import (
     PARAM_NAMES,
     VehicleParams,
+    feedthrough,
     frequency_response,
     load_vehicle,
     modes,
@@ -26,9 +27,9 @@ DEFAULT = VehicleParams()
 def direct_response(theta, omega, row):
     """C (j w I - A)^-1 B by a linear solve for each frequency (independent of the tf code)."""
     a, b, c_s, c_us = state_space(theta)
-    c = (c_s, c_us)[row]
+    c, d = (c_s, c_us)[row], feedthrough(theta)[row]
     x = np.linalg.solve(1j * omega[:, None, None] * np.eye(4) - a, b)
-    return (c @ x)[:, 0, 0]
+    return (c @ x + d)[:, 0, 0]
 
 
 def test_modes_match_the_paper_values():
