@@ -67,6 +67,14 @@ def message_class(msgtype: str) -> Any | None:
         return None
 
 
+def final_note(node: Node, text: str) -> None:
+    """Log ``text``, or print it to stderr once a signal has shut the context down."""
+    if node.context.ok():
+        node.get_logger().info(text)
+    else:
+        print(f'[{node.get_name()}] {text}', file=sys.stderr)
+
+
 def qos_profile(choice: QosChoice) -> QoSProfile:
     """The rclpy profile of a QosChoice."""
     return QoSProfile(
@@ -154,9 +162,9 @@ class BagReplayNode(Node):
             else:
                 self.publishers_by_topic[event.topic].publish(event.data)
                 published += 1
-        self.get_logger().info(f'published {published} messages; lateness mean '
-                               f'{pacer.late_mean_ns / 1e6:.3f} ms, max '
-                               f'{pacer.late_max_ns / 1e6:.3f} ms')
+        final_note(self, f'published {published} messages; lateness mean '
+                         f'{pacer.late_mean_ns / 1e6:.3f} ms, max '
+                         f'{pacer.late_max_ns / 1e6:.3f} ms')
         return published
 
     def destroy_node(self) -> None:

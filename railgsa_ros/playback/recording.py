@@ -75,6 +75,7 @@ class BagRecorder:
         self._channels: dict[str, int] = {}
         self._pending: dict[str, int] = {}
         self._seg_start = self._seg_end = 0
+        self.failed: str | None = None
         if self.path.exists():
             raise ConfigError(f'{self.path}: output already exists')
         try:
@@ -110,7 +111,9 @@ class BagRecorder:
         self._guarded(flush)
 
     def close(self) -> None:
-        """Finish the file in progress and write metadata.yaml."""
+        """Finish the file in progress and write metadata.yaml (nothing more after a failure)."""
+        if self.failed:
+            return
         self._guarded(self._finish)
         if not self.segments:
             self._guarded(self._write_metadata)
@@ -210,8 +213,10 @@ class BagRecorder:
         self._writer, self._file, self._pending = None, None, {}
         kept = sum(s.count for s in self.segments)
         target = broken or self.path / 'metadata.yaml'
-        return (f'{target}: write failed ({_why(exc)}); recording stopped, {kept} messages in '
-                f'{len(self.segments)} finished file(s) of {self.path} stay readable')
+        self.failed = (f'{target}: write failed ({_why(exc)}); recording stopped, {kept} '
+                       f'messages in {len(self.segments)} finished file(s) of {self.path} stay '
+                       'readable')
+        return self.failed
 
 
 def _qos_yaml(profiles: list[Qos]) -> str:

@@ -1,0 +1,172 @@
+"""recorder: records topics as raw CDR into a rosbag2 MCAP bag (playback.recording.BagRecorder).
+
+Parameters (fixed at start-up): ``out`` (bag directory to create), ``topics`` (string array),
+``duration`` (s of wall time, 0 = until SIGINT/SIGTERM), ``split`` (s per storage file) and
+``compress`` (zstd chunks). A topic is subscribed as soon as a publisher of it appears, with the
+publishers' QoS (BEST_EFFORT if any of them is), and its offered QoS and type hash are stored.
+SIGINT/SIGTERM finish the bag (exit 0); a write error keeps the finished files readable and exits
+2 with one error line naming the file.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+import sys
+import time
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+
+from railgsa_ros.errors import ConfigError, RailGsaError
+from railgsa_ros.nodes.bag_replay_node import final_note, message_class
+from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes.qos import output_qos, sensor_qos
+from railgsa_ros.playback.recording import BagRecorder, TopicSpec
+from railgsa_ros.playback.schedule import absolute
+
+NAME = 'recorder'
+SPECS = (
+    ParamSpec('out', '', 'bag directory to create', read_only=True),
+    ParamSpec('duration', 0.0, 'recording time (s), 0 = until stopped', bounds=(0.0, 1e9),
+              read_only=True),
+    ParamSpec('split', 60.0, 'seconds per storage file', bounds=(0.1, 1e6), read_only=True),
+    ParamSpec('compress', True, 'zstd-compress the MCAP chunks', read_only=True),
+)
+#: Reader history (messages): one second at 1 kHz.
+DEPTH = 1000
+#: Period (s) of the topic discovery and of the flush/split check.
+DISCOVERY_S = 0.1
+FLUSH_S = 1.0
+
+
+def bag_qos(profile: QoSProfile) -> Qos:
+    """An rclpy profile as a rosbags Qos record (the enums share their values)."""
+    def span(duration: Any) -> QosTime:
+        return QosTime(*divmod(duration.nanoseconds, 1_000_000_000))
+    return Qos(QosHistory(int(profile.history)), profile.depth,
+               QosReliability(int(profile.reliability)), QosDurability(int(profile.durability)),
+               span(profile.deadline), span(profile.lifespan),
+               QosLiveliness(int(profile.liveliness)), span(profile.liveliness_lease_duration),
+               profile.avoid_ros_namespace_conventions)
+
+
+def subscription_qos(offered: list[QoSProfile]) -> QoSProfile:
+    """RELIABLE only if every publisher is; TRANSIENT_LOCAL only if every publisher is."""
+    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+    profile = output_qos(DEPTH) if reliable else sensor_qos(DEPTH)
+    if all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered):
+        profile.durability = DurabilityPolicy.TRANSIENT_LOCAL
+    return profile
+
+
+class RecorderNode(Node):
+    """Subscribes to the topics (raw) and appends every message to a BagRecorder."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        """Read the parameters and create the bag (ConfigError naming it on failure)."""
+        super().__init__(NAME, **kwargs)
+        values = declare(self, SPECS)
+        topics = self.declare_parameter('topics', Parameter.Type.STRING_ARRAY,
+                                        ParamSpec('topics', '', 'topics to record')
+                                        .descriptor()).value or []
+        if not values['out']:
+            raise ConfigError('parameter out: no output bag given')
+        if not topics:
+            raise ConfigError('parameter topics: no topic to record')
+        self.waiting = list(dict.fromkeys(absolute(t) for t in topics))
+        self.duration_s = values['duration']
+        self.bag = BagRecorder(values['out'], values['split'], values['compress'])
+        self.started = time.monotonic()
+        self.done = False
+        self._subs: list[Any] = []
+        self.create_timer(DISCOVERY_S, self._discover)
+        self.create_timer(FLUSH_S, self._flush)
+        self.get_logger().info(f'recording {", ".join(self.waiting)} into {self.bag.path}')
+
+    def _discover(self) -> None:
+        """Subscribe to every awaited topic that has a publisher now."""
+        for topic in list(self.waiting):
+            infos = self.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            msgtype = infos[0].topic_type
+            cls = message_class(msgtype)
+            self.waiting.remove(topic)
+            if cls is None:
+                self.get_logger().warning(f'not recording {topic}: type {msgtype} is not '
+                                          'available in this ROS installation')
+                continue
+            offered = [i.qos_profile for i in infos if i.topic_type == msgtype]
+            type_hash = str(getattr(infos[0], 'topic_type_hash', '') or '')
+            self.bag.add_topic(TopicSpec(topic, msgtype, [bag_qos(p) for p in offered],
+                                         type_hash if type_hash.startswith('RIHS') else ''))
+            self._subs.append(self.create_subscription(
+                cls, topic, partial(self._on_message, topic), subscription_qos(offered),
+                raw=True))
+            self.get_logger().info(f'recording {topic} ({msgtype})')
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        """Append one message, stamped with the node clock at reception (ns)."""
+        self.bag.write(topic, self.get_clock().now().nanoseconds, data)
+
+    def _flush(self) -> None:
+        """Push data to disk, split files when due, and stop after ``duration``."""
+        self.bag.tick(self.get_clock().now().nanoseconds)
+        if self.duration_s and time.monotonic() - self.started >= self.duration_s:
+            self.done = True
+
+    def finish(self) -> None:
+        """Close the bag (finishing the file in progress) and log the count."""
+        self.bag.close()
+        final_note(self, f'recorded {self.bag.message_count} messages into {self.bag.path}')
+
+
+def run(args: list[str] | None = None, parameters: list[Parameter] | None = None) -> int:
+    """Record until ``duration`` or SIGINT/SIGTERM; 0 with the bag closed and readable.
+
+    RailGsaError (bad output path, write error) propagates after the finished files are made
+    safe; the caller prints it and exits 2.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = RecorderNode(parameter_overrides=parameters or [])
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not node.done:
+            executor.spin_once(timeout_sec=DISCOVERY_S)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            try:
+                node.finish()
+            finally:
+                node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console entry point: 0 when finished or interrupted, 2 with a one-line error."""
+    try:
+        return run(args)
+    except RailGsaError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())
