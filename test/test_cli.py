@@ -1,0 +1,181 @@
+"""The railgsa command line: discovery, fast help, simulate/bode/demo, errors and exit codes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+import pkgutil
+import re
+import subprocess
+import sys
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+from railgsa_ros import cli
+from railgsa_ros.cli import simulate
+from railgsa_ros.cli.main import main
+from railgsa_ros.scenario import run_scenario
+
+HEAVY = ('numpy', 'scipy', 'matplotlib', 'rosbags', 'rclpy', 'mcap')
+
+
+def railgsa(*args: str) -> subprocess.CompletedProcess:
+    """Run ``python -m railgsa_ros.cli.main`` as a user would."""
+    return subprocess.run([sys.executable, '-m', 'railgsa_ros.cli.main', *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_help_lists_every_subcommand_without_heavy_imports() -> None:
+    modules = sorted(m.name for m in pkgutil.iter_modules(cli.__path__)
+                     if m.name != 'main' and not m.name.startswith('_'))
+    assert {'bode', 'demo', 'simulate'} <= set(modules)
+    result = railgsa('--help')
+    assert result.returncode == 0
+    listed = set(re.findall(r'^    (\w+)', result.stdout, re.MULTILINE))
+    assert set(modules) <= listed
+    probe = ('import sys; from railgsa_ros.cli.main import build_parser; build_parser(); '
+             f'print(sorted(m for m in {HEAVY!r} if m in sys.modules))')
+    loaded = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                            check=True).stdout.strip()
+    assert loaded == '[]'
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_simulate_writes_the_scenario(tmp_path: Path, storage: str) -> None:
+    out = tmp_path / 'run'
+    args = ['--profile', 'german-high', '--speed', '25', '--duration', '3', '--rate', '500',
+            '--sensor', 'adxl355', '--seed', '7', '--defects', 'dip@30:len=6:depth=0.003',
+            '--odom-rate', '25', '--start-time', '100']
+    assert main(['simulate', '--out', str(out), '--storage', storage, *args]) == 0
+    run = run_scenario('german-high', 25.0, 3.0, 500.0, 'adxl355', 7,
+                       defects='dip@30:len=6:depth=0.003', start_ns=100 * 10**9)
+    with AnyReader([out]) as reader:
+        msgs: dict[str, list] = {}
+        for conn, t, raw in reader.messages():
+            msgs.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    imu = msgs['/imu/data']
+    assert [t for t, _ in imu] == run.stamps_ns.tolist()
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in imu]
+    assert stamps == run.stamps_ns.tolist()
+    acc = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
+                    for _, m in imu])
+    np.testing.assert_array_equal(acc, run.accel)
+    first = imu[0][1]
+    assert first.header.frame_id == 'imu_link'
+    assert first.orientation_covariance[0] == -1
+    np.testing.assert_allclose(first.linear_acceleration_covariance[[0, 4, 8]],
+                               run.accel_covariance, rtol=1e-15)
+    truth = msgs['/track/irregularity_truth']
+    np.testing.assert_array_equal([m.point.x for _, m in truth], run.chainage_m)
+    np.testing.assert_array_equal([m.point.z for _, m in truth], run.truth_u_m)
+    odom = msgs['/odom']
+    assert len(odom) == pytest.approx(3 * 25, abs=2)
+    np.testing.assert_array_equal([m.twist.twist.linear.x for _, m in odom], 25.0)
+    if storage == 'mcap':
+        (mcap_file,) = out.glob('*.mcap')
+        with mcap_file.open('rb') as f:
+            decoded = [(m.channel.topic, m.decoded_message) for m in make_reader(
+                f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+        mz = [m.linear_acceleration.z for topic, m in decoded if topic == '/imu/data']
+        np.testing.assert_array_equal(mz, run.accel[:, 2])
+        tz = [m.point.z for topic, m in decoded if topic == '/track/irregularity_truth']
+        np.testing.assert_array_equal(tz, run.truth_u_m)
+
+
+def test_simulate_summary_and_bad_arguments(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture) -> None:
+    ok = railgsa('simulate', '--out', str(tmp_path / 'ok'), '--duration', '1', '--profile',
+                 'paper', '--speed', '10', '--sensor', 'ideal')
+    assert ok.returncode == 0, ok.stderr
+    assert '/imu/data' in ok.stdout and 'sensor_msgs/msg/Imu' in ok.stdout
+    assert len(ok.stdout.splitlines()) <= 24
+    bad_yaml = tmp_path / 'vehicle.yaml'
+    bad_yaml.write_text('vehicle: {m_s: -1, m_us: 1100, k_s: 2.13e+6, k_us: 1.42e+8, c: 1.2e+5}')
+    blocker = tmp_path / 'a_file'
+    blocker.write_text('x')
+    cases = {
+        ('--speed', '-3'): '--speed',
+        ('--duration', 'nan'): '--duration',
+        ('--sensor', 'lis3dh'): 'lis3dh',
+        ('--profile', 'swiss-9'): 'swiss-9',
+        ('--profile', 'file:/no/such.csv'): '/no/such.csv',
+        ('--defects', 'crater@5'): 'crater',
+        ('--vehicle', str(bad_yaml)): 'm_s',
+        ('--storage', 'sqlite3', '--compression', 'zstd'): 'zstd',
+        ('--out', str(tmp_path / 'ok')): 'already exists',
+        ('--out', str(blocker / 'bag')): 'a_file/bag',
+    }
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for extra, fragment in cases.items():
+        argv = ['simulate', '--duration', '1', '--out', str(tmp_path / 'new'), *extra]
+        assert main(argv) == 2, extra
+        err = capsys.readouterr().err
+        assert err.startswith('error: ') and fragment in err, (extra, err)
+        assert len(err.strip().splitlines()) == 1, extra
+        assert sorted(p.name for p in tmp_path.iterdir()) == before, extra
+    # The installed entry point: one line, no traceback.
+    result = railgsa('simulate', '--out', str(tmp_path / 'new'), '--sensor', 'lis3dh')
+    assert result.returncode == 2
+    assert result.stderr.startswith('error: ') and 'lis3dh' in result.stderr
+    assert result.stderr.count('\n') == 1 and 'Traceback' not in result.stderr
+    with pytest.raises(SystemExit) as usage:
+        main(['simulate', '--out', str(tmp_path / 'new'), '--speed', 'fast'])
+    assert usage.value.code == 2 and "invalid float value: 'fast'" in capsys.readouterr().err
+
+
+def test_keyboard_interrupt_exits_130_and_leaves_nothing(tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture) -> None:
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr('railgsa_ros.bag.run.RunEncoder.encode', interrupted)
+    assert main(['simulate', '--out', str(tmp_path / 'b'), '--duration', '1']) == 130
+    assert list(tmp_path.iterdir()) == []
+    assert capsys.readouterr().err == ''
+    monkeypatch.setattr(simulate, 'simulate_bag', interrupted)
+    assert main(['simulate', '--out', str(tmp_path / 'b')]) == 130
+
+
+def test_bode_table_matches_the_characteristic_polynomial(tmp_path: Path) -> None:
+    result = railgsa('bode', '--out', str(tmp_path / 'fig' / 'bode.png'))
+    assert result.returncode == 0, result.stderr
+    png = (tmp_path / 'fig' / 'bode.png').read_bytes()
+    assert png[:8] == b'\x89PNG\r\n\x1a\n' and len(png) > 20_000
+    # Independent truth: det(M s^2 + C s + K) of the two-mass model with Table 1 values.
+    m_s, m_us, k_s, k_us, c = 9875.0, 1100.0, 2.13e6, 1.42e8, 1.2e5
+    den = np.polysub(np.polymul([m_s, c, k_s], [m_us, c, k_s + k_us]),
+                     np.polymul([c, k_s], [c, k_s]))
+    poles = np.roots(den)
+    upper = poles[poles.imag > 0]
+    freqs = sorted(np.abs(upper) / (2 * np.pi))
+    zetas = [-p.real / abs(p) for p in sorted(upper, key=abs)]
+    rows = re.findall(r'^(car-body bounce|wheel hop)\s+([\d.]+)\s+([\d.]+)', result.stdout,
+                      re.MULTILINE)
+    assert [r[0] for r in rows] == ['car-body bounce', 'wheel hop']
+    np.testing.assert_allclose([float(r[1]) for r in rows], freqs, atol=1e-3)
+    np.testing.assert_allclose([float(r[2]) for r in rows], zetas, atol=1e-4)
+    assert freqs[0] == pytest.approx(2.33, abs=0.01) and freqs[1] == pytest.approx(57.3, abs=0.1)
+    zeros_s = re.search(r'zeros of G_s\s+\[rad/s\]: (.*)', result.stdout).group(1)
+    assert zeros_s == f'{-k_s / c:.4g}, 0, 0'
+    vehicle = tmp_path / 'v.yaml'
+    vehicle.write_text('vehicle: {m_s: 9875.0, m_us: 1100.0, k_s: 2.13e+6, k_us: 1.42e+8}')
+    bad = railgsa('bode', '--vehicle', str(vehicle), '--out', str(tmp_path / 'x.png'))
+    assert bad.returncode == 2 and 'missing field(s) c' in bad.stderr
+    assert not (tmp_path / 'x.png').exists()
+    fmt = railgsa('bode', '--out', str(tmp_path / 'x.doc'))
+    assert fmt.returncode == 2 and "unsupported image format '.doc'" in fmt.stderr
+
+
+def test_demo_runs_and_replaces_its_outputs(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / 'demo'
+    assert main(['demo', '--out', str(out)]) == 0
+    first = capsys.readouterr().out
+    assert '/track/irregularity_truth' in first and 'wheel hop' in first
+    assert sorted(p.name for p in out.iterdir()) == ['bode.png', 'simulated_bag']
+    assert main(['demo', '--out', str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ['bode.png', 'simulated_bag']
