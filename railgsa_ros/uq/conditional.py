@@ -21,8 +21,7 @@ import math
 import numpy as np
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.uq.delta import l1_distances
-from railgsa_ros.uq.germ import sobol
+from railgsa_ros.uq.delta import l1_distances, paired_sobol
 from railgsa_ros.uq.pce import basis, multi_indices
 from railgsa_ros.uq.rules import THETA, pem5
 
@@ -73,8 +72,8 @@ def delta_conditional(design: ConditionalDesign, y: np.ndarray,
     inner, _ = pem5(n - 1)
     psi = basis(inner, alpha)  # (Nc, P)
     coef = np.einsum('cp,c,ikcm->ikpm', psi, design.weights, y[design.index])
-    samples = sobol(n - 1, n_mc, seed, 'hermite')
+    samples = paired_sobol(n - 1, n_mc // 2, seed, 'hermite')
     y_cond = np.einsum('sp,ikpm->iksm', basis(samples, alpha), coef)
-    y_ref = reference(sobol(n, n_mc, None if seed is None else seed + 1, 'hermite'))
-    dist = l1_distances(y_ref, y_cond.reshape(3 * n, n_mc, -1)).reshape(n, 3, -1)
+    y_ref = reference(paired_sobol(n, n_mc // 2, None if seed is None else seed + 1, 'hermite'))
+    dist = l1_distances(y_ref, y_cond.reshape(3 * n, samples.shape[0], -1)).reshape(n, 3, -1)
     return np.clip(0.5 * np.einsum('k,ikm->mi', WEIGHTS_1D, dist), 0.0, 1.0)

@@ -58,7 +58,12 @@ def _smooth(diff: np.ndarray, h_bins: np.ndarray) -> np.ndarray:
 def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
                  bandwidth_factor: float | None = None) -> np.ndarray:
     """integral |f_ref - f_cond| for a reference sample y_ref (N, m) and K conditional samples
-    y_cond (K, Nc, m): shape (K, m), each value in [0, 2] up to sampling noise."""
+    y_cond (K, Nc, m): shape (K, m), each value in [0, 2] up to sampling noise.
+
+    Rows 0::2 and 1::2 of each sample are the two cross-fitting halves and must be independent
+    of each other (e.g. :func:`paired_sobol` or random rows): the even and odd points of one
+    Sobol' sequence are not (measured: L1 = -0.29 for two shifted normals).
+    """
     y_ref, y_cond = np.asarray(y_ref, dtype=float), np.asarray(y_cond, dtype=float)
     bins = bins or BINS
     bandwidth_factor = bandwidth_factor or BANDWIDTH_FACTOR
@@ -82,7 +87,7 @@ def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
     return np.where(hi > lo, dist, 0.0)
 
 
-def _two_scrambles(n: int, size: int, seed: int | None, germ: str) -> np.ndarray:
+def paired_sobol(n: int, size: int, seed: int | None, germ: str) -> np.ndarray:
     """Two independently scrambled Sobol' sets in germ space, interleaved by row: (2 size, n).
 
     Quasi-random samples make the binned densities far less noisy than random ones for the same
@@ -101,9 +106,9 @@ def delta_indices(func: Callable[[np.ndarray], np.ndarray], n: int, n_mc: int = 
     n_outer fixed values at the midpoints of equal-probability strata of xi_i times
     n_mc // n_outer inner samples of the others (common random numbers across strata).
     """
-    ref = _two_scrambles(n, n_mc // 2, seed, germ)
+    ref = paired_sobol(n, n_mc // 2, seed, germ)
     y_ref = np.atleast_2d(func(ref).T).T
-    inner = _two_scrambles(n, max(n_mc // (2 * n_outer), 8), None if seed is None else seed + 1,
+    inner = paired_sobol(n, max(n_mc // (2 * n_outer), 8), None if seed is None else seed + 1,
                            germ)
     n_inner = inner.shape[0]
     nodes = from_unit((np.arange(n_outer) + 0.5) / n_outer, germ)

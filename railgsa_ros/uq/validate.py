@@ -60,8 +60,9 @@ def monte_carlo_indices(model: Model, dists: Sequence[Distribution], n_base: int
     classes = classes or max(round(n_base ** (1 / 3)), 2)
     per = n_base // classes
     order = np.argsort(a, axis=0)[:per * classes]  # (classes * per, n)
-    cond = y_a[order.T].reshape(n * classes, per, -1)
-    dist = l1_distances(y_a, cond).reshape(n, classes, -1)
+    cond = y_a[order.T].reshape(n * classes, per, -1)  # rank-interleaved halves: independent
+    shuffled = y_a[np.random.default_rng(seed).permutation(n_base)]  # Sobol' rows are not
+    dist = l1_distances(shuffled, cond).reshape(n, classes, -1)
     delta = np.clip(0.5 * dist.mean(axis=1).T, 0.0, 1.0)
     mean, std = np.mean(y_a, axis=0), np.sqrt(var)
 
