@@ -227,7 +227,10 @@ def measure(t_s: np.ndarray, a_true: np.ndarray, spec: ImuSpec, seed: int | None
     if t_s.ndim != 1 or t_s.size < 2 or a.shape != (t_s.size, 3):
         raise ValueError(f'measure: t_s (T,) and a_true (T,) or (T, 3), got {t_s.shape}, '
                          f'{np.shape(a_true)}')
-    fs_in = (t_s.size - 1) / (t_s[-1] - t_s[0])
+    steps = np.diff(t_s)
+    if steps.min() <= 0 or np.ptp(steps) > 1e-6 * steps.mean():
+        raise ValueError('measure: t_s must be uniformly spaced and increasing')
+    fs_in = 1.0 / steps.mean()
     up, down = rate_ratio(fs_in, spec.output_rate_hz)
     # one independent stream per effect: switching one effect leaves the others unchanged
     noise_rng, walk_rng, jitter_rng, drop_rng = np.random.default_rng(seed).spawn(4)
