@@ -1,0 +1,99 @@
+"""Uncertain vehicle parameters from YAML (``--uncertainty``) and the paper's Table 3 default.
+
+Schema::
+
+    parameters:
+      k_s: {dist: normal, mu: 2.13e+6, sigma: 7.1e+5}   # optional lower/upper, default lower: 0
+      c: {dist: uniform, a: 8.0e+4, b: 1.6e+5}
+
+Any of m_s, m_us, k_s, k_us, c. Distributions: normal (mu, sigma, lower, upper), uniform (a, b),
+lognormal (mu, sigma of ln x), gamma (shape, scale), exponential (rate), empirical (samples).
+Negative-sample policy: the five parameters are positive, so a normal is truncated at
+``lower`` (default 0) and uniform/empirical values must be positive.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from railgsa_ros.config import load_yaml
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.uq.distributions import (
+    Distribution,
+    Empirical,
+    Exponential,
+    Gamma,
+    LogNormal,
+    Normal,
+    Uniform,
+)
+from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
+
+FIELDS = {'normal': (Normal, ('mu', 'sigma'), ('lower', 'upper')),
+          'uniform': (Uniform, ('a', 'b'), ()),
+          'lognormal': (LogNormal, ('mu', 'sigma'), ()),
+          'gamma': (Gamma, ('shape', 'scale'), ()),
+          'exponential': (Exponential, ('rate',), ()),
+          'empirical': (Empirical, ('samples',), ())}
+TABLE_3 = ('k_s', 'k_us', 'c')  # uncertain in the paper, sigma = mu / 3
+
+
+def table3(vehicle: VehicleParams | None = None) -> dict[str, Distribution]:
+    """The paper's Table 3: k_s, k_us, c ~ Normal(mu = nominal, sigma = mu / 3), truncated at 0."""
+    vehicle = vehicle or VehicleParams()
+    return {name: Normal(getattr(vehicle, name), getattr(vehicle, name) / 3.0, lower=0.0)
+            for name in TABLE_3}
+
+
+def _number(value: Any) -> Any:
+    """YAML 1.1 leaves '2.13e6' a string: accept numeric strings."""
+    try:
+        return float(value) if isinstance(value, str) else value
+    except ValueError:
+        return value
+
+
+def parse_parameter(name: str, spec: Any) -> Distribution:
+    """One entry of ``parameters:``; errors name ``parameters.<name>.<field>``."""
+    where = f'parameters.{name}'
+    if name not in PARAM_NAMES:
+        raise ConfigError(f'{where}: unknown parameter; expected any of {", ".join(PARAM_NAMES)}')
+    if not isinstance(spec, dict) or spec.get('dist') not in FIELDS:
+        raise ConfigError(f'{where}.dist: expected one of {", ".join(FIELDS)}')
+    cls, required, optional = FIELDS[spec['dist']]
+    unknown = sorted(set(spec) - {'dist', *required, *optional})
+    missing = [f for f in required if f not in spec]
+    if unknown or missing:
+        field = (unknown or missing)[0]
+        raise ConfigError(f'{where}.{field}: {"unknown" if unknown else "missing"} field for '
+                          f'dist {spec["dist"]} (fields: {", ".join(required + optional)})')
+    kwargs = {f: _number(spec[f]) for f in (*required, *optional) if f in spec}
+    if cls is Normal:
+        kwargs.setdefault('lower', 0.0)
+    try:
+        dist = cls(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(f'{where}.{exc}') from None
+    except (TypeError, ValueError):
+        raise ConfigError(f'{where}: invalid values {kwargs!r}') from None
+    low = dist.from_xi(-40.0)
+    if not low >= 0.0:
+        raise ConfigError(f'{where}: the distribution allows values below 0, but {name} is a '
+                          f'positive physical parameter')
+    return dist
+
+
+def load_uncertainty(path: str | Path | None) -> dict[str, Distribution]:
+    """Parameter name -> distribution, in PARAM_NAMES order; None gives Table 3."""
+    if path is None:
+        return table3()
+    doc = load_yaml(path)
+    params = doc.get('parameters') if isinstance(doc, dict) else None
+    if not isinstance(params, dict) or not params:
+        raise ConfigError(f'{path}: expected a non-empty "parameters:" mapping')
+    try:
+        parsed = {name: parse_parameter(name, spec) for name, spec in params.items()}
+    except ConfigError as exc:
+        raise ConfigError(f'{path}: {exc}') from None
+    return {name: parsed[name] for name in PARAM_NAMES if name in parsed}
