@@ -198,7 +198,7 @@ def _corrupt_pages(path: Path) -> None:
     path.write_bytes(bytes(data))
 
 
-def _damaged(kind: str, tmp: Path) -> tuple[Path, Path]:
+def damaged_bag(kind: str, tmp: Path) -> tuple[Path, Path]:
     """(bag to open, file the message must name) for each damaged-input case."""
     if kind == 'missing':
         return tmp / 'nope', tmp / 'nope'
@@ -222,7 +222,7 @@ def _damaged(kind: str, tmp: Path) -> tuple[Path, Path]:
 @pytest.mark.parametrize('kind', ['missing', 'empty-dir', 'no-messages', 'garbage',
                                   'truncated-mcap', 'corrupt-sqlite3'])
 def test_bad_bags_raise_input_error_naming_the_file(kind: str, tmp_path: Path) -> None:
-    path, named = _damaged(kind, tmp_path)
+    path, named = damaged_bag(kind, tmp_path)
     with pytest.raises(InputError) as err, BagSource(path) as source:
         list(source.messages(list(source.topics)))
     message = str(err.value)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import threading
 import time
 from typing import Any
 
@@ -102,6 +103,7 @@ class BagReplayNode(Node):
             duration_s=values['duration'], topics=tuple(arrays['topics']),
             remaps=parse_remaps(arrays['remaps']), clock_hz=values['clock_hz'])
         self.wait_s = values['wait_for_subscribers']
+        self._stop = threading.Event()
         self.source = BagSource(values['bag_path'])
         try:
             self._setup()
@@ -133,18 +135,21 @@ class BagReplayNode(Node):
         self.window = window(self.source.start_ns, self.source.end_ns, self.options)
 
     def _wait_for_subscribers(self) -> None:
-        """Wait up to ``wait_for_subscribers`` s until every topic has a subscriber."""
+        """Wait up to ``wait_for_subscribers`` s until every topic (and /clock) is subscribed."""
         deadline = time.monotonic() + self.wait_s
-        lonely = list(self.publishers_by_topic)
-        while lonely and time.monotonic() < deadline and self.context.ok():
-            lonely = [t for t in lonely
-                      if self.publishers_by_topic[t].get_subscription_count() == 0]
+        pubs = dict(self.publishers_by_topic)
+        if self.clock_pub is not None:
+            pubs['/clock'] = self.clock_pub
+        lonely = list(pubs)
+        while lonely and time.monotonic() < deadline and self._running():
+            lonely = [t for t in lonely if pubs[t].get_subscription_count() == 0]
             time.sleep(0.01)
-        if lonely and self.context.ok():
+        if lonely and self._running():
             self.get_logger().warning(f'playing without subscribers on {", ".join(lonely)}')
 
     def play(self) -> int:
-        """Replay until the end (never with loop) or shutdown; returns the messages published."""
+        """Replay until the end (never with loop), ``stop()`` or shutdown; returns the number of
+        messages published."""
         if self.wait_s > 0:
             self._wait_for_subscribers()
         lo, hi = self.window
@@ -154,7 +159,7 @@ class BagReplayNode(Node):
         published = 0
         schedule = events(lambda: self.source.messages(self.topics, lo, hi), lo, hi, self.options)
         for event in schedule:
-            if not pacer.wait(event.due_ns, self.context.ok):
+            if not pacer.wait(event.due_ns, self._running):
                 break
             if isinstance(event, ClockTick):
                 sec, nanosec = divmod(event.stamp_ns, NS)
@@ -166,6 +171,14 @@ class BagReplayNode(Node):
                          f'{pacer.late_mean_ns / 1e6:.3f} ms, max '
                          f'{pacer.late_max_ns / 1e6:.3f} ms')
         return published
+
+    def stop(self) -> None:
+        """Make ``play()`` return within one pacing slice (thread-safe)."""
+        self._stop.set()
+
+    def _running(self) -> bool:
+        """Whether playback should go on."""
+        return self.context.ok() and not self._stop.is_set()
 
     def destroy_node(self) -> None:
         """Close the bag, then destroy the node."""
