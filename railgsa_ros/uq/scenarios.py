@@ -39,7 +39,8 @@ def sample_indices(times: Sequence[float], dt: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A callable model: uncertain parameter values (N, n) in ``names`` order -> (N, m)."""
+    """A callable model: uncertain parameter values (N, n) in ``names`` order -> (N, m), or
+    (N,) when ``times`` is a scalar."""
 
     kind: str
     names: tuple[str, ...]
@@ -69,7 +70,7 @@ class Scenario:
             else:
                 series = simulate(self.u, self.dt, part)[0]
             out[start:start + CHUNK] = series[:, idx]
-        return out
+        return out[:, 0] if self.times.ndim == 0 else out
 
     @property
     def unit(self) -> str:
@@ -90,7 +91,7 @@ def make_scenario(kind: str, times: float | Sequence[float],
         raise ConfigError('uncertainty: no uncertain parameter')
     vehicle = vehicle or VehicleParams()
     dt = 1.0 / rate_hz
-    times = np.atleast_1d(np.asarray(times, dtype=float))
+    times = np.asarray(times, dtype=float)
     last = int(sample_indices(times, dt).max())
     _, u = make_profile(profile, speed_mps * dt * last, speed_mps * dt, seed)
     u = u[:last + 1]

@@ -1,0 +1,109 @@
+"""``railgsa gsa``: uncertainty and global sensitivity of the paper's scenarios (Section 8)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``gsa`` subcommand."""
+    p = subparsers.add_parser(
+        'gsa', help='uncertainty and Sobol/Borgonovo sensitivities by PEM + polynomial chaos',
+        description='Propagate uncertain vehicle parameters through the inverse reconstruction '
+                    '(irregularity at time T) or the forward simulation (car-body acceleration '
+                    'at T) with a Hermite PCE fitted on PEM points; report mean, std, '
+                    'quantiles, Sobol first/total and Borgonovo delta indices.')
+    p.add_argument('--scenario', choices=('inverse', 'forward'), default='inverse')
+    p.add_argument('--time', type=float, default=7.0, metavar='T',
+                   help='time in s, a multiple of the 0.5 ms simulation step (default 7)')
+    p.add_argument('--profile', default='paper', metavar='SPEC',
+                   help='german-low|german-high|fra-N|paper|file:CSV (default paper)')
+    p.add_argument('--speed', type=float, default=10.0, metavar='MPS', help='m/s (default 10)')
+    p.add_argument('--uncertainty', metavar='FILE.yaml',
+                   help='uncertain parameters (default: Table 3, sigma = mu / 3)')
+    p.add_argument('--vehicle', metavar='FILE', help='nominal vehicle YAML (default Table 1)')
+    p.add_argument('--rule', choices=('pem3', 'pem5', 'gauss', 'lstsq'), default='pem5')
+    p.add_argument('--order', type=int, default=3, help='PCE total order (default 3)')
+    p.add_argument('--gain', type=float, default=1000.0, help='feedback gain K^c (default 1000)')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--json', action='store_true', help='print the result as JSON')
+    p.add_argument('--plot', metavar='DIR', help='write histogram.png and sensitivity.png')
+    p.add_argument('--validate', type=int, metavar='N',
+                   help='also run brute-force Monte Carlo with N (n + 2) model runs')
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the analysis and print text or JSON."""
+    import json
+    from pathlib import Path
+    import warnings
+
+    import numpy as np
+
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.uq import AliasingWarning, analyze, validate
+    from railgsa_ros.uq.scenarios import make_scenario
+    from railgsa_ros.uq.uncertainty_file import load_uncertainty
+    from railgsa_ros.vehicle import VehicleParams, load_vehicle
+
+    if args.order < 1:
+        raise ConfigError(f'--order: expected an integer >= 1, got {args.order}')
+    vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
+    dists = load_uncertainty(args.uncertainty) if args.uncertainty else None
+    if dists is None:
+        from railgsa_ros.uq.uncertainty_file import table3
+        dists = table3(vehicle)
+    scenario = make_scenario(args.scenario, args.time, dists, args.profile, args.speed, vehicle,
+                             args.gain, seed=args.seed)
+    names = list(dists)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', AliasingWarning)
+        result = analyze(scenario, list(dists.values()), order=args.order, rule=args.rule,
+                         seed=args.seed)
+    notes = [str(w.message) for w in caught if issubclass(w.category, AliasingWarning)]
+    q = result.quantiles([0.025, 0.5, 0.975])
+    out = {
+        'scenario': args.scenario, 'time_s': args.time, 'unit': scenario.unit,
+        'parameters': {n: {'mean': d.mean(), 'std': d.std()} for n, d in dists.items()},
+        'mean': float(result.mean), 'std': float(result.std),
+        'quantiles': {'2.5%': float(q[0]), '50%': float(q[1]), '97.5%': float(q[2])},
+        'sobol_first': dict(zip(names, np.round(result.sobol_first, 6).tolist(), strict=True)),
+        'sobol_total': dict(zip(names, np.round(result.sobol_total, 6).tolist(), strict=True)),
+        'delta': dict(zip(names, np.round(result.delta, 6).tolist(), strict=True)),
+        'n_evaluations': result.n_evaluations, 'rule': args.rule, 'order': args.order,
+        'fit': result.fit, 'notes': notes,
+    }
+    if args.validate:
+        check = validate(scenario, list(dists.values()), n_base=args.validate, seed=args.seed,
+                         result=result)
+        out['validation'] = {'n_evaluations': check.monte_carlo.n_evaluations,
+                             'cost_ratio': check.cost_ratio, 'errors': check.errors}
+    if args.plot:
+        from railgsa_ros.uq.plots import plot_histogram, plot_sensitivities
+
+        folder = Path(args.plot)
+        folder.mkdir(parents=True, exist_ok=True)
+        label = {'inverse': 'reconstructed irregularity', 'forward': 'car-body acceleration'}
+        plot_histogram(result, folder / 'histogram.png',
+                       f'{label[args.scenario]} at t = {args.time:g} s [{scenario.unit}]')
+        plot_sensitivities(result, names, folder / 'sensitivity.png',
+                           f'{args.scenario} simulation, t = {args.time:g} s')
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f'{args.scenario} at t = {args.time:g} s: mean {out["mean"]:.6g} {scenario.unit}, '
+          f'std {out["std"]:.4g}, 95 % interval [{q[0]:.6g}, {q[2]:.6g}]')
+    print(f'{result.n_evaluations} model runs, rule {args.rule}, order {args.order} '
+          f'({result.fit})')
+    print(f'{"parameter":<10}{"S_first":>10}{"S_total":>10}{"delta":>10}')
+    for i, name in enumerate(names):
+        print(f'{name:<10}{result.sobol_first[i]:10.4f}{result.sobol_total[i]:10.4f}'
+              f'{result.delta[i]:10.4f}')
+    for note in notes:
+        print(f'note: {note}')
+    if args.validate:
+        v = out['validation']
+        errs = ', '.join(f'{k} {e:.4f}' for k, e in v['errors'].items())
+        print(f'brute force: {v["n_evaluations"]} runs ({v["cost_ratio"]:.0f}x); errors {errs}')
+    return 0
