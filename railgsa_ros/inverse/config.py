@@ -57,11 +57,14 @@ class InversionConfig:
                                      'absent or unknown, m/s^2', (1e-9, 10.0))
     track_spectrum_av: float = _p(4.032e-7, 'kalman: German spectrum amplitude A_v, m rad '
                                             '(4.032e-7 low, 1.080e-6 high)', (1e-12, 1e-3))
+    bias_walk_mps2: float = _p(1e-6, 'kalman: accelerometer bias random walk, '
+                                     '(m/s^2)/sqrt(s)', (0.0, 1.0))
     smoother: bool = _p(False, 'kalman: offline RTS smoother (outputs at flush)')
     gap_factor: float = _p(3.0, 'a step above this many nominal periods is a gap', (1.0, 1e6))
-    gap_policy: str = _p('reset', 'gap handling', choices=('reset', 'bridge'))
-    max_bridge_s: float = _p(0.05, 'bridge policy: longest gap interpolated, s', (0.0, 10.0))
-    saturation_mps2: float = _p(78.4532, 'accelerometer range, m/s^2 (0 = no check)',
+    gap_policy: str = _p('bridge', 'gap handling', choices=('reset', 'bridge'))
+    max_bridge_s: float = _p(0.2, 'bridge policy: longest gap interpolated, s', (0.0, 10.0))
+    saturation_mps2: float = _p(19.6133, 'accelerometer range, m/s^2 (0 = no check; '
+                                                  'ADXL355 +-2 g)',
                                 (0.0, 1e4))
     saturation_margin_mps2: float = _p(0.01, 'samples within this of the range are saturated',
                                        (0.0, 1e3))

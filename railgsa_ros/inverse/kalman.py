@@ -5,8 +5,10 @@ u'' + (a + b) u' + a b u = g w, a = v Omega_r, b = v Omega_c (rad/s), g^2 = pi A
 Its one-sided spectrum g^2 / (pi (w^2 + a^2)(w^2 + b^2)) in m^2/(rad/s) is the German spectrum
 S(Omega) = A_v Omega_c^2 / ((Omega^2 + Omega_r^2)(Omega^2 + Omega_c^2)) mapped to time with
 w = v Omega and S_t(w) = S(w / v) / v: its exact 2nd-order factorisation, poles scaled by speed.
-The augmented state [v_s, v_us, x_s, x_us, u, u'] is discretised exactly (Van Loan), the
-measurement is the sprung acceleration with noise variance R, and the steady-state gain (DARE)
+The augmented state [v_s, v_us, x_s, x_us, u, u', b] adds the accelerometer bias b as a random
+walk ((m/s^2)/sqrt(s)), so that a constant offset is not read as a parabola in u (the double zero
+of G at s = 0 makes both look alike). It is discretised exactly (Van Loan), the measurement is
+the sprung acceleration plus b with noise variance R, and the steady-state gain (DARE)
 makes the filter LTI, so it runs as a ``StateSpaceBank`` over parameter sets.
 """
 
@@ -20,7 +22,7 @@ from railgsa_ros.vehicle import state_space
 
 OMEGA_R = 0.0206  # rad/m, German spectrum [rail_domain.md section 2]
 OMEGA_C = 0.8246  # rad/m
-N_STATE = 6
+N_STATE = 7
 U_INDEX = 4
 
 
@@ -30,9 +32,9 @@ def shaping_coefficients(speed_mps: float, av: float) -> tuple[float, float, flo
     return v * OMEGA_R, v * OMEGA_C, float(np.sqrt(np.pi * av * OMEGA_C ** 2 * v ** 3))
 
 
-def augmented_model(theta: np.ndarray, speed_mps: float, av: float, dt: float
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Discrete (Phi (P,6,6), Q (P,6,6), C (P,1,6)) of the vehicle plus shaping filter."""
+def augmented_model(theta: np.ndarray, speed_mps: float, av: float, bias_walk: float,
+                    dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Discrete (Phi (P,7,7), Q (P,7,7), C (P,1,7)) of vehicle, shaping filter and bias."""
     a_v, b_v, c_s, _ = state_space(np.atleast_2d(theta))
     p = a_v.shape[0]
     a, b, g = shaping_coefficients(speed_mps, av)
@@ -41,8 +43,8 @@ def augmented_model(theta: np.ndarray, speed_mps: float, av: float, dt: float
     f[:, :4, U_INDEX] = b_v[..., 0]
     f[:, 4, 5] = 1.0
     f[:, 5, 4], f[:, 5, 5] = -a * b, -(a + b)
-    gw = np.zeros((N_STATE, 1))
-    gw[5, 0] = g
+    gw = np.zeros((N_STATE, 2))
+    gw[5, 0], gw[6, 1] = g, bias_walk
     # Van Loan: expm([[-F, G G^T], [0, F^T]] dt) = [[., Phi^-1 Q], [0, Phi^T]]
     m = np.zeros((p, 2 * N_STATE, 2 * N_STATE))
     m[:, :N_STATE, :N_STATE] = -f * dt
@@ -54,16 +56,17 @@ def augmented_model(theta: np.ndarray, speed_mps: float, av: float, dt: float
     q = 0.5 * (q + np.swapaxes(q, 1, 2))
     c = np.zeros((p, 1, N_STATE))
     c[:, :, :4] = c_s
+    c[:, :, 6] = 1.0
     return phi, q, c
 
 
 class KalmanDesign:
     """Steady-state filter and smoother gains for one speed; arrays over P parameter sets."""
 
-    def __init__(self, theta: np.ndarray, speed_mps: float, av: float, noise_var: float,
-                 dt: float) -> None:
-        self.speed = float(speed_mps)
-        phi, q, c = augmented_model(theta, speed_mps, av, dt)
+    def __init__(self, theta: np.ndarray, speed_mps: float, av: float, bias_walk: float,
+                 noise_var: float, dt: float) -> None:
+        self.speed, self.dt = float(speed_mps), dt
+        phi, q, c = augmented_model(theta, speed_mps, av, bias_walk, dt)
         r = np.array([[noise_var]])
         prior = np.stack([solve_discrete_are(ph.T, cc.T, qq, r)
                           for ph, cc, qq in zip(phi, c, q, strict=True)])
@@ -83,7 +86,7 @@ class KalmanDesign:
         cd, dd = self.update, self.gain
         if outputs == 'u':
             cd, dd = cd[:, U_INDEX:U_INDEX + 1], dd[:, U_INDEX:U_INDEX + 1]
-        return DiscreteSystem(ad, bd, cd, dd, 0.0)
+        return DiscreteSystem(ad, bd, cd, dd, self.dt)
 
     @property
     def spectral_radius(self) -> float:
@@ -98,17 +101,17 @@ class KalmanInverse:
     and keeps the state estimate; ``smooth`` is the offline RTS smoother for a whole record.
     """
 
-    def __init__(self, theta: np.ndarray, av: float, noise_var: float, dt: float,
-                 speed_mps: float, tolerance: float, min_speed_mps: float) -> None:
+    def __init__(self, theta: np.ndarray, av: float, bias_walk: float, noise_var: float,
+                 dt: float, speed_mps: float, tolerance: float, min_speed_mps: float) -> None:
         self.theta = np.atleast_2d(theta)
-        self.av, self.noise_var, self.dt = av, noise_var, dt
+        self.av, self.bias_walk, self.noise_var, self.dt = av, bias_walk, noise_var, dt
         self.tolerance, self.min_speed = tolerance, min_speed_mps
         self.design = self._design(speed_mps)
         self._bank = StateSpaceBank(self.design.filter_system())
 
     def _design(self, speed: float) -> KalmanDesign:
         return KalmanDesign(self.theta, max(abs(speed), self.min_speed), self.av,
-                            self.noise_var, self.dt)
+                            self.bias_walk, self.noise_var, self.dt)
 
     def set_speed(self, speed_mps: float) -> bool:
         """Redesign for a new speed (m/s) when needed; True when the gains changed."""
@@ -131,10 +134,10 @@ class KalmanInverse:
         """RTS smoother over a whole record from the zero state: u_hat_k|N (m), shape (P, T).
 
         Backward pass x_k|N = (I - J Phi) x_k|k + J x_k+1|N, run in reversed time as a bank of
-        P x 6 single-input systems (one per state component of x_k|k), summed.
+        P x 7 single-input systems (one per state component of x_k|k), summed.
         """
         d = self.design
-        fwd = StateSpaceBank(d.filter_system('state')).process(a_s)  # (P, 6, T) x_k|k
+        fwd = StateSpaceBank(d.filter_system('state')).process(a_s)  # (P, 7, T) x_k|k
         p, n, t_len = fwd.shape
         if t_len == 0:
             return np.zeros((p, 0))

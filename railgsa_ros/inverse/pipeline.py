@@ -119,7 +119,8 @@ class InversionPipeline:
             self.stability = self._stage.stability
         elif cfg.method == 'kalman':
             var = cfg.noise_std_mps2 ** 2 if noise_variance is None else float(noise_variance)
-            self._stage = KalmanInverse(self.theta, cfg.track_spectrum_av, var, self.dt,
+            self._stage = KalmanInverse(self.theta, cfg.track_spectrum_av, cfg.bias_walk_mps2,
+                                        var, self.dt,
                                         cfg.speed_mps, cfg.speed_tolerance,
                                         cfg.min_design_speed_mps)
         self._fir: PartitionedFir | None = None
@@ -205,6 +206,7 @@ class InversionPipeline:
         self._meta_start = 0  # segment index of the oldest sample in the delay line
         self._last_a = 0.0
         self._bias = None
+        self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
         if self._stage is not None:
             self._stage.reset()
         if self._fir is not None:
@@ -258,7 +260,9 @@ class InversionPipeline:
                 self._redesign(n0 + lo)
             x = u[:, lo:hi] if u is not None else (
                 a_s[lo:hi] if self._stage is None else self._stage.process(a_s[lo:hi]))
-            outs.append(self._band(x))
+            if self._offset is None:
+                self._offset = np.atleast_2d(x)[:, :1].copy()
+            outs.append(self._band(np.atleast_2d(x) - self._offset))
         return self._join(outs)
 
     def _speed_at(self, n: int) -> float:

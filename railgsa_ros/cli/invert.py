@@ -1,0 +1,140 @@
+"""``railgsa invert``: reconstruct the track irregularity from the IMU stream of a bag.
+
+Runs the node's streaming ``InversionPipeline`` over the bag in chunks and writes
+``t_s,chainage_m,u_m`` (t_s = IMU stamp in s) for every accepted sample, or with ``--out`` the
+node's ``/track/irregularity`` topic (geometry_msgs/PointStamped, frame ``track``, point.x =
+chainage, point.z = irregularity, header stamp = log time = IMU stamp) to a rosbag2 bag.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+
+CHUNK = 65536  # IMU samples per pipeline call
+OUT_TOPIC = '/track/irregularity'
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``invert`` subcommand."""
+    p = subparsers.add_parser(
+        'invert', help='reconstruct track irregularity from a bag (CSV or bag output)',
+        description='Reconstruct the vertical track irregularity from the car-body '
+                    'accelerometer of a rosbag2 bag (MCAP or sqlite3) with the streaming '
+                    'pipeline of irregularity_node.')
+    p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory or file')
+    out = p.add_mutually_exclusive_group(required=True)
+    out.add_argument('--csv', metavar='OUT.csv', help='write t_s,chainage_m,u_m')
+    out.add_argument('--out', metavar='OUT.mcap', help='write /track/irregularity to a bag')
+    p.add_argument('--method', choices=('spectral', 'feedback', 'kalman'),
+                   help='inversion method (default: the params file, else spectral)')
+    p.add_argument('--band', choices=('d1', 'd2', 'none'),
+                   help='EN 13848 band (default: the params file, else d1)')
+    p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
+    p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
+    p.add_argument('--odom-topic', default='/odom', metavar='T',
+                   help='odometry topic for the speed (default /odom; ignored when absent)')
+    p.add_argument('--params', metavar='FILE',
+                   help='ROS params file with irregularity_node: ros__parameters:')
+    p.add_argument('--vehicle', metavar='FILE', help='vehicle YAML (default the paper Table 1)')
+    p.add_argument('--speed', type=float, metavar='MPS',
+                   help='constant speed in m/s, overriding odometry')
+    p.add_argument('--overwrite', action='store_true', help='replace an existing output')
+    p.set_defaults(func=run)
+
+
+def build_config(args: argparse.Namespace, rate_hz: float) -> object:
+    """Params file (if any), then the command-line choices; rate_hz from the bag unless set."""
+    from railgsa_ros.config import load_yaml, ros_parameters
+    from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
+
+    params = dict(ros_parameters(load_yaml(args.params), NODE_NAME)) if args.params else {}
+    known = set(InversionConfig.__dataclass_fields__)
+    params = {k: v for k, v in params.items() if k in known}
+    params.setdefault('rate_hz', rate_hz)
+    for name in ('method', 'band'):
+        if getattr(args, name) is not None:
+            params[name] = getattr(args, name)
+    if args.smoother:
+        params['smoother'] = True
+    if args.speed is not None:
+        params['speed_mps'] = args.speed
+    return InversionConfig.from_mapping(params, source=args.params or 'command line')
+
+
+def invert_bag(args: argparse.Namespace) -> tuple[object, object]:
+    """Run the pipeline over the bag; returns (Output of every accepted sample, pipeline)."""
+    import numpy as np
+
+    from railgsa_ros.bag import read_imu
+    from railgsa_ros.errors import ConfigError, InputError
+    from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+    from railgsa_ros.vehicle import VehicleParams, load_vehicle
+
+    if args.speed is not None and not (np.isfinite(args.speed) and args.speed > 0):
+        raise ConfigError(f'--speed: expected a positive number of m/s, got {args.speed!r}')
+    stream = read_imu(args.bag, args.imu_topic, args.odom_topic)
+    stamps = stream.stamps_ns
+    steps = np.diff(stamps)
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        raise InputError(f'{args.bag}: {args.imu_topic} needs at least two distinct stamps')
+    cfg = build_config(args, 1e9 / float(np.median(steps)))
+    vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
+    variance = stream.accel_variance(cfg.noise_std_mps2 ** 2)[:, 'xyz'.index(cfg.accel_axis[-1])]
+    known = variance[np.isfinite(variance)]
+    pipe = InversionPipeline(cfg, vehicle, float(np.median(known)) if known.size else None)
+    if args.speed is not None or stream.odom_stamps_ns.size == 0:
+        speed = np.full(stamps.size, cfg.speed_mps)
+    else:  # odometry held: the newest odometry sample at or before each IMU stamp
+        idx = np.searchsorted(stream.odom_stamps_ns, stamps, side='right') - 1
+        speed = stream.speed_mps[np.clip(idx, 0, None)]
+    acc = vertical(stream.accel, cfg.accel_axis)
+    outs = [pipe.push(stamps[i:i + CHUNK], acc[i:i + CHUNK], speed[i:i + CHUNK],
+                      stream.frame_ids[i:i + CHUNK]) for i in range(0, stamps.size, CHUNK)]
+    outs.append(pipe.flush())
+    return Output(*(np.concatenate([getattr(o, f) for o in outs]) for f in
+                    ('stamps_ns', 'chainage_m', 'u_m'))), pipe
+
+
+def write_csv(path: str | Path, out: object, overwrite: bool) -> None:
+    """``t_s,chainage_m,u_m`` with the stamp printed exactly from its nanoseconds."""
+    import numpy as np
+
+    from railgsa_ros.fileio import atomic_output
+
+    sec, nsec = np.divmod(out.stamps_ns, 1_000_000_000)
+    t = np.char.add(np.char.add(sec.astype(str), '.'), np.char.zfill(nsec.astype(str), 9))
+    body = [f'{a},{c:.4f},{u:.9e}' for a, c, u in zip(t, out.chainage_m, out.u_m, strict=True)]
+    with atomic_output(path, overwrite) as tmp:
+        tmp.write_text('\n'.join(['t_s,chainage_m,u_m', *body]) + '\n', encoding='utf-8')
+
+
+def write_bag(path: str | Path, out: object, overwrite: bool) -> None:
+    """``/track/irregularity`` PointStamped messages, log time = header stamp = IMU stamp."""
+    import numpy as np
+
+    from railgsa_ros.bag import BagWriter
+    from railgsa_ros.bag.cdr import encode
+    from railgsa_ros.bag.messages import POINT_STAMPED, history_depth, qos
+
+    values = np.zeros((out.stamps_ns.size, 3))
+    values[:, 0], values[:, 2] = out.chainage_m, out.u_m
+    with BagWriter(path, 'mcap', overwrite=overwrite) as bag:
+        bag.add_topic(OUT_TOPIC, POINT_STAMPED.msgtype, qos(True, history_depth(1000.0)))
+        raws = encode(POINT_STAMPED, out.stamps_ns, ['track'], values)
+        bag.write_batches({OUT_TOPIC: (out.stamps_ns, raws)})
+
+
+def run(args: argparse.Namespace) -> int:
+    """Invert the bag and write the result; prints a one-line summary to stderr."""
+    out, pipe = invert_bag(args)
+    if args.csv:
+        write_csv(args.csv, out, args.overwrite)
+    else:
+        write_bag(args.out, out, args.overwrite)
+    counts = ', '.join(f'{k} {v}' for k, v in sorted(pipe.counters.items()))
+    print(f'{len(out)} samples ({pipe.config.method}, band {pipe.config.band}, delay '
+          f'{pipe.delay_samples} samples); {counts}', file=sys.stderr)
+    return 0
