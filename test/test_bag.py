@@ -106,6 +106,7 @@ def test_cdr_decodes_mixed_frame_ids_and_rejects_other_encodings() -> None:
         cdr.decode(IMU, [raws[0][:40]])
     with pytest.raises(ValueError):
         cdr.split_stamps(np.array([2**31 * 10**9]))
+    assert cdr.encode(IMU, np.zeros(0, np.int64), ['imu_link'], np.zeros((0, 37))) == []
 
 
 @pytest.mark.parametrize(('storage', 'compression'),

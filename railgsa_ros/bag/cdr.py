@@ -60,6 +60,8 @@ def encode(layout: StampedLayout, stamps_ns: np.ndarray, strings: Sequence[str],
         raise ValueError(f'{layout.msgtype}: expected {layout.n_strings} strings')
     sec, nsec = split_stamps(stamps_ns)
     n = sec.size
+    if n == 0:
+        return []
     values = np.broadcast_to(np.asarray(values, dtype='<f8'), (n, layout.n_doubles))
     prefix = bytearray()
     for text in strings:
