@@ -70,8 +70,10 @@ def chaospy_quad(model_xi, dist, order):
     def fn():
         nodes, weights = cp.generate_quadrature(order, dist, rule='gaussian')
         expansion = cp.generate_expansion(order, dist, normed=True)
-        fit = cp.fit_quadrature(expansion, nodes, weights, model_xi(nodes.T))
-        return nodes.shape[1], cp.FirstOrderSobol(fit, dist), cp.TotalOrderSobol(fit, dist)
+        _, coef = cp.fit_quadrature(expansion, nodes, weights, model_xi(nodes.T), retall=1)
+        # normed=True: FirstOrderSobol/TotalOrderSobol sum squared coefficients (gsa_notes 1)
+        return (nodes.shape[1], cp.FirstOrderSobol(expansion, coef),
+                cp.TotalOrderSobol(expansion, coef))
     return fn
 
 

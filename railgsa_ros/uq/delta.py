@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy import ndimage, stats
 
 from railgsa_ros.uq.germ import from_unit, sobol
 
@@ -117,3 +118,34 @@ def delta_indices(func: Callable[[np.ndarray], np.ndarray], n: int, n_mc: int = 
     y_cond = np.atleast_2d(func(xi.reshape(-1, n)).T).T.reshape(n * n_outer, n_inner, -1)
     dist = l1_distances(y_ref, y_cond).reshape(n, n_outer, -1)
     return np.clip(0.5 * dist.mean(axis=1).T, 0.0, 1.0)
+
+
+def delta_given_data(x: np.ndarray, y: np.ndarray, bins: int | None = None,
+                     smooth: float = 2.0, seed: int | None = 0) -> np.ndarray:
+    """delta_i from one sample of inputs x (N, n) and outputs y (N, m), no model: (m, n).
+
+    With u = F_i(x_i), v = F_Y(y) (ranks), f(x, y) = c(u, v) f(x) f(y), so
+    delta_i = 1/2 integral |c(u, v) - 1| du dv: the copula density of (X_i, Y) against 1. The
+    same cross-fitted estimator on a bins x bins rank grid (default 2 N^(1/3)): sign from one
+    random half smoothed by ``smooth`` cells (scipy.ndimage.gaussian_filter), cell
+    probabilities from the other. Neighbouring x-classes share the smoothing, which is what
+    makes it better than independent classes at brute-force sample sizes; it is still biased
+    low for peaky conditional densities (Ishigami, N = 16384: about -0.03).
+    """
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float).reshape(len(x), -1)
+    n_rows, n, m = x.shape[0], x.shape[1], y.shape[1]
+    bins = bins or round(2 * n_rows ** (1 / 3))
+    iu = (stats.rankdata(x, axis=0, method='ordinal').astype(np.int64) - 1) * bins // n_rows
+    iv = (stats.rankdata(y, axis=0, method='ordinal').astype(np.int64) - 1) * bins // n_rows
+    perm = np.random.default_rng(seed).permutation(n_rows)
+    pair = np.arange(n)[:, None] * m + np.arange(m)  # (n, m)
+    diffs = []
+    for half in (perm[0::2], perm[1::2]):
+        key = (pair * bins + iu[half][:, :, None]) * bins + iv[half][:, None, :]
+        counts = np.bincount(key.ravel(), minlength=n * m * bins * bins)
+        diffs.append(counts.reshape(n, m, bins, bins) / len(half) - 1.0 / bins ** 2)
+    sign_a, sign_b = (np.sign(ndimage.gaussian_filter(d, sigma=(0, 0, smooth, smooth)))
+                      for d in diffs)
+    total = 0.5 * (np.sum(sign_a * diffs[1], axis=(-2, -1))
+                   + np.sum(sign_b * diffs[0], axis=(-2, -1)))
+    return np.clip(0.5 * total.T, 0.0, 1.0)

@@ -2,8 +2,8 @@
 
 Sobol' indices by the Saltelli (2010) first-order and Jansen total-effect estimators on a
 scrambled Sobol' pair of matrices A, B (N (n + 2) model runs); delta from the given data
-(the N runs of A, sorted into equal-probability classes of each input) with the same
-cross-fitted L1 estimator as the surrogate.
+(the 2N runs of A and B) by the copula form of the same cross-fitted L1 estimator
+(:func:`delta.delta_given_data`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from railgsa_ros.uq.analyze import Model, Result, analyze, evaluate
-from railgsa_ros.uq.delta import l1_distances
+from railgsa_ros.uq.delta import delta_given_data
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.uq.germ import sobol
 
@@ -43,7 +43,7 @@ class Validation:
 
 
 def monte_carlo_indices(model: Model, dists: Sequence[Distribution], n_base: int = 4096,
-                        seed: int | None = 0, classes: int | None = None) -> MonteCarloIndices:
+                        seed: int | None = 0) -> MonteCarloIndices:
     """Saltelli/Jansen Sobol' indices and given-data delta with n_base (n + 2) model runs."""
     n = len(dists)
     ab = sobol(2 * n, n_base, seed, 'hermite')
@@ -51,20 +51,16 @@ def monte_carlo_indices(model: Model, dists: Sequence[Distribution], n_base: int
     mixed = np.broadcast_to(a, (n, n_base, n)).copy()
     mixed[np.arange(n), :, np.arange(n)] = b.T
     y, scalar = evaluate(model, dists, np.concatenate([a, b, mixed.reshape(-1, n)]))
+    mean = np.mean(y[:2 * n_base], axis=0)
+    y = y - mean  # centred: the first-order estimator's noise grows with mean^2 / variance
     y_a, y_b = y[:n_base], y[n_base:2 * n_base]
     y_ab = y[2 * n_base:].reshape(n, n_base, -1)
     var = np.var(np.concatenate([y_a, y_b]), axis=0)
     safe = np.where(var > 0, var, 1.0)
     first = np.mean(y_b * (y_ab - y_a), axis=1).T / safe[:, None]
     total = 0.5 * np.mean((y_a - y_ab) ** 2, axis=1).T / safe[:, None]
-    classes = classes or max(round(n_base ** (1 / 3)), 2)
-    per = n_base // classes
-    order = np.argsort(a, axis=0)[:per * classes]  # (classes * per, n)
-    cond = y_a[order.T].reshape(n * classes, per, -1)  # rank-interleaved halves: independent
-    shuffled = y_a[np.random.default_rng(seed).permutation(n_base)]  # Sobol' rows are not
-    dist = l1_distances(shuffled, cond).reshape(n, classes, -1)
-    delta = np.clip(0.5 * dist.mean(axis=1).T, 0.0, 1.0)
-    mean, std = np.mean(y_a, axis=0), np.sqrt(var)
+    delta = delta_given_data(np.concatenate([a, b]), np.concatenate([y_a, y_b]), seed=seed)
+    std = np.sqrt(var)
 
     def shape(v: np.ndarray) -> np.ndarray:
         return v[0] if scalar else v
