@@ -1,10 +1,23 @@
 """Build script for railgsa_ros: one tree for pip (``pip install -e .[ros,test]``) and colcon."""
 
 from glob import glob
+from pathlib import Path
+import re
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'railgsa_ros'
+
+
+def node_scripts() -> list[str]:
+    """One console script per node module (a module of railgsa_ros/nodes with a top-level
+    ``def main(``), named after the module: ``ros2 run railgsa_ros <module>``."""
+    here = Path(__file__).resolve().parent
+    return [f'{path.stem} = {PACKAGE}.nodes.{path.stem}:main'
+            for path in sorted((here / PACKAGE / 'nodes').glob('*.py'))
+            if re.search(r'^def main\(', path.read_text(encoding='utf-8'), re.MULTILINE)]
+
+
 ROS = ['ros-jazzy-rclpy==7.1.6', 'ros-jazzy-common-interfaces==5.3.6',
        'ros-jazzy-rmw-fastrtps-cpp==8.4.3']
 
@@ -32,8 +45,6 @@ setup(
     description='Track irregularity from car-body acceleration with uncertainty and sensitivity.',
     license='Apache-2.0',
     entry_points={
-        'console_scripts': [
-            'railgsa = railgsa_ros.cli.main:main',
-        ],
+        'console_scripts': ['railgsa = railgsa_ros.cli.main:main', *node_scripts()],
     },
 )

@@ -1,0 +1,114 @@
+"""Packaging: package.xml (REP 149 format 3), setup.py entry points, ROS-free core, the CLI."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+import re
+import runpy
+import shutil
+import subprocess
+import sys
+import tomllib
+from typing import Any
+import xml.etree.ElementTree as ET
+
+import pytest
+import setuptools
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = REPO / 'railgsa_ros'
+ROS_MODULE = re.compile(r'^(rclpy|rcl_interfaces|builtin_interfaces|rosidl\w*|ament\w*|\w+_msgs|'
+                        r'\w+_srvs)$')
+
+
+def setup_kwargs(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """The keyword arguments setup.py passes to setuptools.setup (nothing is built)."""
+    captured: dict[str, Any] = {}
+    monkeypatch.setattr(setuptools, 'setup', lambda **kw: captured.update(kw))
+    monkeypatch.chdir(REPO)
+    runpy.run_path(str(REPO / 'setup.py'), run_name='__main__')
+    return captured
+
+
+def top_level_imports(path: Path) -> set[str]:
+    """First components of every module imported anywhere in a Python file."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+        if isinstance(node, ast.Import):
+            names.update(a.name.split('.')[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module.split('.')[0])
+    return names
+
+
+def test_package_xml_format3_with_the_real_dependencies() -> None:
+    root = ET.parse(REPO / 'package.xml').getroot()
+    assert root.tag == 'package' and root.get('format') == '3'
+    assert root.findtext('name') == 'railgsa_ros'
+    assert re.fullmatch(r'\d+\.\d+\.\d+', root.findtext('version'))
+    assert root.findtext('description').strip()
+    assert all(m.get('email') for m in root.findall('maintainer')) and root.findall('maintainer')
+    assert root.findtext('license') == 'Apache-2.0'
+    assert root.findtext('export/build_type') == 'ament_python'
+    exec_deps = {e.text for tag in ('depend', 'exec_depend') for e in root.findall(tag)}
+    ros_imports = set().union(*(top_level_imports(p) for p in PACKAGE.rglob('*.py')))
+    ros_imports = {m for m in ros_imports if ROS_MODULE.match(m)}
+    assert {'rclpy', 'sensor_msgs', 'nav_msgs', 'geometry_msgs'} <= ros_imports
+    assert ros_imports <= exec_deps, ros_imports - exec_deps
+    for key in ('python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib'):
+        assert key in exec_deps
+    assert 'python3-pytest' in {e.text for e in root.findall('test_depend')}
+    setup_version = re.search(r"version='([^']+)'", (REPO / 'setup.py').read_text()).group(1)
+    assert setup_version == root.findtext('version')
+
+
+def test_setup_entry_points_import(monkeypatch: pytest.MonkeyPatch) -> None:
+    kwargs = setup_kwargs(monkeypatch)
+    scripts = dict(s.replace(' ', '').split('=') for s in
+                   kwargs['entry_points']['console_scripts'])
+    assert scripts['railgsa'] == 'railgsa_ros.cli.main:main'
+    assert scripts['imu_sim_node'] == 'railgsa_ros.nodes.imu_sim_node:main'
+    node_mains = {p.stem for p in (PACKAGE / 'nodes').glob('*.py')
+                  if re.search(r'^def main\(', p.read_text(), re.MULTILINE)}
+    assert node_mains <= set(scripts)
+    for target in scripts.values():
+        module, attr = target.split(':')
+        assert callable(getattr(importlib.import_module(module), attr)), target
+    assert 'test' not in kwargs['packages'] and 'railgsa_ros.bag' in kwargs['packages']
+    data = dict(kwargs['data_files'])
+    assert data['share/ament_index/resource_index/packages'] == ['resource/railgsa_ros']
+    assert (REPO / 'resource' / 'railgsa_ros').is_file()
+    assert 'config/imu_sim.yaml' in data['share/railgsa_ros/config']
+    assert not any(r.startswith('rclpy') for r in kwargs['install_requires'])
+    assert any(r.startswith('ros-jazzy-rclpy==') for r in kwargs['extras_require']['ros'])
+    cfg = (REPO / 'setup.cfg').read_text()
+    assert 'script_dir=$base/lib/railgsa_ros' in cfg
+    assert 'install_scripts=$base/lib/railgsa_ros' in cfg
+    pyproject = tomllib.loads((REPO / 'pyproject.toml').read_text())
+    assert 'project' not in pyproject  # colcon-ros runs setup.py
+
+
+def test_core_imports_no_ros_and_needs_no_share_directory() -> None:
+    offenders = {}
+    for path in PACKAGE.rglob('*.py'):
+        if 'nodes' in path.relative_to(PACKAGE).parts:
+            continue
+        ros = {m for m in top_level_imports(path) if ROS_MODULE.match(m)}
+        if ros:
+            offenders[str(path.relative_to(REPO))] = ros
+        assert 'get_package_share_directory' not in path.read_text(), path
+    assert offenders == {}
+
+
+def test_installed_railgsa_script_lists_the_subcommands() -> None:
+    script = Path(sys.executable).parent / 'railgsa'
+    if not script.exists():
+        script = shutil.which('railgsa')
+    if script is None:
+        pytest.skip('railgsa console script not installed (pip install -e .)')
+    result = subprocess.run([str(script), '--help'], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0
+    for command in ('simulate', 'bode', 'demo'):
+        assert re.search(rf'^    {command}\s', result.stdout, re.MULTILINE), command
