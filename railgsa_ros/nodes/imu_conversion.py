@@ -19,31 +19,35 @@ from typing import Any
 import numpy as np
 
 NS_PER_S = 1_000_000_000
-_BAD = (0, 0, '', float('nan'), float('nan'), float('nan'))
-_ROW = np.dtype([('sec', np.int64), ('nsec', np.int64), ('frame', object), ('acc_z', float),
-                 ('cov0', float), ('cov8', float)])
+_NAN3 = (float('nan'),) * 3
+_BAD = (0, 0, '', _NAN3, float('nan'), _NAN3)
+_ROW = np.dtype([('sec', np.int64), ('nsec', np.int64), ('frame', object), ('accel', float, 3),
+                 ('cov0', float), ('var', float, 3)])
 
 
 @dataclass(frozen=True)
 class ImuBatch:
     """N Imu messages as arrays; rows flagged ``malformed`` hold placeholders."""
 
-    stamps_ns: np.ndarray    #: int64 (N,), header stamps in ns
-    acc_z: np.ndarray        #: float (N,), specific force on z incl. gravity, m/s^2
-    frame_ids: np.ndarray    #: object (N,) of str, header.frame_id
-    accel_var_z: np.ndarray  #: float (N,), z variance in (m/s^2)^2, NaN if absent or unknown
-    malformed: np.ndarray    #: bool (N,)
+    stamps_ns: np.ndarray  #: int64 (N,), header stamps in ns
+    accel: np.ndarray      #: float (N, 3), specific force x, y, z incl. gravity, m/s^2
+    frame_ids: np.ndarray  #: object (N,) of str, header.frame_id
+    accel_var: np.ndarray  #: float (N, 3), x, y, z variances (m/s^2)^2, NaN if absent/unknown
+    malformed: np.ndarray  #: bool (N,)
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
 
 
-def _imu_fields(msg: Any) -> tuple[int, int, str, float, float, float]:
-    """(sec, nanosec, frame_id, a_z, cov[0], cov[8]); placeholders if a field is unreadable."""
+def _imu_fields(msg: Any) -> tuple:
+    """(sec, nanosec, frame_id, (ax, ay, az), cov[0], (cov[0], cov[4], cov[8])); placeholders
+    if a field is unreadable."""
     try:
-        stamp, cov = msg.header.stamp, msg.linear_acceleration_covariance
+        stamp, cov, acc = msg.header.stamp, msg.linear_acceleration_covariance, \
+            msg.linear_acceleration
         return (int(stamp.sec), int(stamp.nanosec), str(msg.header.frame_id),
-                float(msg.linear_acceleration.z), float(cov[0]), float(cov[8]))
+                (float(acc.x), float(acc.y), float(acc.z)), float(cov[0]),
+                (float(cov[0]), float(cov[4]), float(cov[8])))
     except (AttributeError, TypeError, ValueError, IndexError, OverflowError):
         return _BAD
 
@@ -53,12 +57,13 @@ def stamps_to_ns(sec: np.ndarray, nanosec: np.ndarray) -> np.ndarray:
     return np.asarray(sec, np.int64) * NS_PER_S + np.asarray(nanosec, np.int64)
 
 
-def accel_variance_z(cov0: np.ndarray, cov8: np.ndarray) -> np.ndarray:
-    """z variance (m/s^2)^2 per REP 145: NaN where absent (cov0 -1 or NaN) or unknown (<= 0)."""
-    cov0, cov8 = np.asarray(cov0, float), np.asarray(cov8, float)
-    absent = np.isnan(cov0) | (cov0 == -1.0)
-    usable = ~absent & np.isfinite(cov8) & (cov8 > 0)
-    return np.where(usable, cov8, np.nan)
+def accel_variances(cov0: np.ndarray, diag: np.ndarray) -> np.ndarray:
+    """Variances (m/s^2)^2 from covariance diagonals (N, 3) per REP 145: NaN where the field is
+    absent (cov0 = -1 or NaN) or the variance unknown (zero, negative or non-finite)."""
+    cov0, diag = np.asarray(cov0, float), np.asarray(diag, float)
+    absent = (np.isnan(cov0) | (cov0 == -1.0))[..., None]
+    usable = ~absent & np.isfinite(diag) & (diag > 0)
+    return np.where(usable, diag, np.nan)
 
 
 def imu_batch(msgs: Sequence[Any]) -> ImuBatch:
@@ -68,9 +73,8 @@ def imu_batch(msgs: Sequence[Any]) -> ImuBatch:
     malformed = ((sec < 0) | (nsec < 0) | (nsec >= NS_PER_S) | ((sec == 0) & (nsec == 0))
                  | (rows['frame'] == ''))
     sec = np.clip(sec, 0, np.iinfo(np.int64).max // NS_PER_S - 1)
-    return ImuBatch(stamps_ns=stamps_to_ns(sec, nsec), acc_z=rows['acc_z'],
-                    frame_ids=rows['frame'], accel_var_z=accel_variance_z(rows['cov0'],
-                                                                          rows['cov8']),
+    return ImuBatch(stamps_ns=stamps_to_ns(sec, nsec), accel=rows['accel'],
+                    frame_ids=rows['frame'], accel_var=accel_variances(rows['cov0'], rows['var']),
                     malformed=malformed)
 
 def odom_speed(msg: Any) -> tuple[int, float] | None:
