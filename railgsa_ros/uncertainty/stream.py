@@ -1,0 +1,142 @@
+"""Streaming uncertainty bands and window sensitivities of the reconstructed irregularity.
+
+One :class:`~railgsa_ros.inverse.pipeline.InversionPipeline` runs the P rule points as a single
+vectorised bank (theta (P, 5)). Every emitted sample k carries the bank outputs u (P,); its PCE
+coefficients are a fixed linear map of them (``Design.projector``), the mean is exact from the
+coefficients (c_0), and the lower/upper quantiles come from the surrogate on a fixed scrambled
+Sobol' germ sample (``Design.sampler``). The pipeline's sanitiser, delay line and stamps are
+those of the nominal pipeline with the same inversion config: the band's stamps are the
+``track/irregularity`` stamps one to one (only the emission lags by the bank's longer FIR delay).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.uncertainty.config import UncertaintyConfig
+from railgsa_ros.uncertainty.surrogate import Design, build_design
+from railgsa_ros.uncertainty.windows import Sensitivity, WindowAnalyzer
+from railgsa_ros.uq.distributions import Distribution
+from railgsa_ros.uq.uncertainty_file import table3
+from railgsa_ros.vehicle import VehicleParams
+
+BLOCK = 2048  # samples per quantile block: bounds memory at BLOCK * germ_samples floats
+OFFLINE_CHUNK = 65536  # samples per push in offline_bands
+
+
+@dataclass(frozen=True)
+class Band:
+    """Per emitted IMU sample: stamps_ns (K,) int64, chainage_m (K,), lower_m, mean_m and
+    upper_m (K,) in metres (quantiles and PCE mean of the irregularity)."""
+
+    stamps_ns: np.ndarray
+    chainage_m: np.ndarray
+    lower_m: np.ndarray
+    mean_m: np.ndarray
+    upper_m: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.size)
+
+    @classmethod
+    def concat(cls, bands: list[Band]) -> Band:
+        """Join bands in order."""
+        return cls(*(np.concatenate([getattr(b, f) for b in bands]) for f in
+                     ('stamps_ns', 'chainage_m', 'lower_m', 'mean_m', 'upper_m')))
+
+
+@dataclass(frozen=True)
+class Update:
+    """What one push/flush produced: the band samples and the closed windows' records."""
+
+    band: Band
+    windows: list[Sensitivity]
+
+
+def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lower, mean, upper), each (K,), from bank outputs u (P, K) in metres."""
+    mean = design.projector[0] @ u
+    bounds = np.empty((2, u.shape[1]))
+    for lo in range(0, u.shape[1], BLOCK):
+        surrogate = u[:, lo:lo + BLOCK].T @ design.sampler.T  # (K', S), contiguous per sample
+        bounds[:, lo:lo + BLOCK] = np.quantile(surrogate, quantiles, axis=1)
+    return bounds[0], mean, bounds[1]
+
+
+class UncertaintyStream:
+    """Chunks of IMU samples in, per-sample bands and per-window sensitivities out.
+
+    ``config``: UncertaintyConfig (its ``inversion`` must equal irregularity_node's config for
+    the stamps to match); ``vehicle``: nominal parameters (Table 1 by default); ``dists``:
+    uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
+    ``noise_variance``: accelerometer variance for the kalman method, (m/s^2)^2.
+    """
+
+    def __init__(self, config: UncertaintyConfig | None = None,
+                 vehicle: VehicleParams | None = None,
+                 dists: Mapping[str, Distribution] | None = None,
+                 noise_variance: float | None = None) -> None:
+        self.config = config if config is not None else UncertaintyConfig()
+        vehicle = vehicle if vehicle is not None else VehicleParams()
+        self.design = build_design(self.config, vehicle,
+                                   dists if dists is not None else table3(vehicle))
+        self.pipeline = InversionPipeline(self.config.inversion, self.design.theta,
+                                          noise_variance)
+        self._windows = WindowAnalyzer(self.config, self.design)
+        self._quantiles = (self.config.lower_quantile, self.config.upper_quantile)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """The pipeline's counters: rejected samples by reason, gaps, resets, emitted, ..."""
+        return self.pipeline.counters
+
+    @property
+    def delay_samples(self) -> int:
+        """Samples between an IMU sample's arrival and its band output (the bank's FIR delay)."""
+        return self.pipeline.delay_samples
+
+    def push(self, stamps_ns: np.ndarray, acc_z: np.ndarray,
+             speed_mps: np.ndarray | float | None = None,
+             frame_ids: np.ndarray | None = None) -> Update:
+        """Feed samples as ``InversionPipeline.push``: stamps (T,) int64 ns, upward specific
+        force (T,) m/s^2 incl. gravity, speed (T,) or scalar m/s, frame ids (T,)."""
+        return self._update(self.pipeline.push(stamps_ns, acc_z, speed_mps, frame_ids))
+
+    def flush(self) -> Update:
+        """End of an offline stream (or a restart): emit every pending sample, close the window."""
+        update = self._update(self.pipeline.flush())
+        return Update(update.band, update.windows + self._windows.close())
+
+    def _update(self, out: Output) -> Update:
+        lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m)
+        band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper)
+        return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m))
+
+
+def offline_bands(stamps_ns: np.ndarray, acc_z: np.ndarray,
+                  speed_mps: np.ndarray | float | None = None,
+                  frame_ids: np.ndarray | None = None,
+                  config: UncertaintyConfig | None = None,
+                  vehicle: VehicleParams | None = None,
+                  dists: Mapping[str, Distribution] | None = None,
+                  noise_variance: float | None = None) -> Band:
+    """Bands of a whole recorded stream (``railgsa invert --bands``): the node's streaming code,
+    pushed in chunks, then flushed; stamps equal the nominal pipeline's push + flush stamps."""
+    config = (config if config is not None else UncertaintyConfig()).with_(qoi='')
+    stream = UncertaintyStream(config, vehicle, dists, noise_variance)
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    speed = None if speed_mps is None else np.broadcast_to(np.asarray(speed_mps, float),
+                                                           stamps.shape)
+    parts = []
+    for lo in range(0, stamps.size, OFFLINE_CHUNK):
+        sl = slice(lo, lo + OFFLINE_CHUNK)
+        parts.append(stream.push(stamps[sl], np.asarray(acc_z)[sl],
+                                 None if speed is None else speed[sl],
+                                 None if frame_ids is None else np.asarray(frame_ids)[sl]).band)
+    parts.append(stream.flush().band)
+    return Band.concat(parts)

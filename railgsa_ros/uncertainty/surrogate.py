@@ -1,0 +1,82 @@
+"""The rule's parameter bank and the linear maps from its P filter outputs to the PCE.
+
+For outputs y (P, ...) of the P rule points, the PCE coefficients are ``projector @ y`` (T, ...):
+the quadrature projection Psi^T diag(w) when the rule integrates degree 2 * order exactly (pem5 up
+to order 2, pem3 up to 1, gauss always), else the least-squares pseudo-inverse (lstsq designs).
+The surrogate on a fixed scrambled Sobol' germ sample Z (S, n) is therefore a fixed linear map too,
+``sampler = basis(Z) @ projector`` (S, P): quantiles per sample cost one (S, P) x (P, K) product
+and one partial sort.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.uncertainty.config import UncertaintyConfig
+from railgsa_ros.uq.distributions import Distribution, isoprobabilistic
+from railgsa_ros.uq.germ import sobol, to_normal
+from railgsa_ros.uq.pce import basis, multi_indices
+from railgsa_ros.uq.rules import exact_degree, make_rule
+from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, as_theta
+
+
+@dataclass(frozen=True)
+class Design:
+    """Rule points xi (P, n) in germ space, their vehicles theta (P, 5), the PCE multi-indices
+    alpha (T, n), ``projector`` (T, P), ``sampler`` (S, P) and the fit used."""
+
+    names: tuple[str, ...]
+    dists: tuple[Distribution, ...]
+    xi: np.ndarray
+    theta: np.ndarray
+    alpha: np.ndarray
+    projector: np.ndarray
+    sampler: np.ndarray
+    fit: str
+
+    @property
+    def points(self) -> int:
+        """Number of rule points = model evaluations (inverse filters) per sample."""
+        return int(self.xi.shape[0])
+
+
+def _projector(config: UncertaintyConfig, xi: np.ndarray, w: np.ndarray,
+               alpha: np.ndarray) -> tuple[np.ndarray, str]:
+    """(T, P) map from rule-point outputs to PCE coefficients, and 'projection' or 'ols'."""
+    psi = basis(xi, alpha, config.germ)
+    exact = exact_degree(config.rule, config.order)
+    if exact is not None:
+        if 2 * config.order > exact:
+            raise ConfigError(f'order: rule {config.rule} projects exactly only up to order '
+                              f'{exact // 2} (order {config.order} would alias); use rule '
+                              f'gauss or lstsq')
+        return psi.T * w, 'projection'
+    if np.linalg.matrix_rank(psi) < alpha.shape[0]:
+        raise ConfigError(f'rule_size: {xi.shape[0]} points cannot fit {alpha.shape[0]} terms')
+    return np.linalg.pinv(psi), 'ols'
+
+
+def build_design(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
+                 dists: Mapping[str, Distribution]) -> Design:
+    """Rule points for the uncertain parameters ``dists`` (name -> distribution, names from
+    PARAM_NAMES) around the nominal ``vehicle``; the other parameters stay nominal."""
+    names = tuple(dists)
+    bad = [n for n in names if n not in PARAM_NAMES]
+    if not names or bad:
+        raise ConfigError(f'uncertain parameters: expected some of {", ".join(PARAM_NAMES)}, '
+                          f'got {", ".join(names) or "none"}')
+    n = len(names)
+    xi, w = make_rule(config.rule, n, config.order, config.rule_size or None, config.seed,
+                      config.germ)
+    theta = np.tile(as_theta(vehicle), (xi.shape[0], 1))
+    physical = isoprobabilistic(list(dists.values()), to_normal(xi, config.germ))
+    theta[:, [PARAM_NAMES.index(name) for name in names]] = physical
+    alpha = multi_indices(n, config.order)
+    projector, fit = _projector(config, xi, w, alpha)
+    z = sobol(n, config.germ_samples, config.seed, config.germ)
+    sampler = basis(z, alpha, config.germ) @ projector
+    return Design(names, tuple(dists.values()), xi, theta, alpha, projector, sampler, fit)
