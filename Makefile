@@ -8,7 +8,7 @@ OUT ?= out/demo
 
 .PHONY: demo test lint bench clean
 
-$(VENV)/.installed: setup.py setup.cfg package.xml
+$(VENV)/.installed: setup.py setup.cfg package.xml pyproject.toml
 	$(PYTHON) -m venv $(VENV) || { echo "python3 -m venv failed: install python3-venv (apt-get install python3-venv)"; exit 1; }
 	$(PY) -m pip install -q --upgrade pip 'setuptools<80' wheel
 	$(PY) -m pip install -q -e '.[ros,test]'

@@ -31,7 +31,7 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
     ],
-    python_requires='>=3.10',
+    python_requires='>=3.11',
     install_requires=['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'matplotlib>=3.7',
                       'rosbags>=0.10', 'mcap>=1.1', 'mcap-ros2-support>=0.5'],
     extras_require={
