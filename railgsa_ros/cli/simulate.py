@@ -31,8 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='IMU preset: ideal | adxl355 | bmi088 (default adxl355)')
     p.add_argument('--seed', type=int, default=0, metavar='N', help='random seed (default 0)')
     p.add_argument('--defects', default=None, metavar='SPEC',
-                   help='isolated defects added to the profile, e.g. "dip@150:length=10,'
-                        'depth=0.004" (see docs/usage.md)')
+                   help='isolated defects added to the profile, e.g. '
+                        '"dip@150:len=10:depth=0.004,joint@300" (see docs/simulation.md)')
     p.add_argument('--vehicle', default=None, metavar='FILE',
                    help='vehicle YAML (default: the paper Table 1)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
