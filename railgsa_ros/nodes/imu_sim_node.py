@@ -27,6 +27,7 @@ from railgsa_ros.errors import RailGsaError
 from railgsa_ros.imu import PRESETS
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, output_qos, sensor_qos
+from railgsa_ros.scenario import run_scenario
 
 NODE_NAME = 'imu_sim'
 SPECS = (
@@ -55,8 +56,6 @@ class ImuSimNode(Node):
     def __init__(self, **kwargs: object) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = declare(self, SPECS)
-        from railgsa_ros.scenario import run_scenario
-
         self.run = run_scenario(p['profile'], p['speed_mps'], p['duration_s'], p['rate_hz'],
                                 p['sensor'], p['seed'], defects=p['defects'] or None,
                                 vehicle=p['vehicle_file'] or None)
