@@ -1,12 +1,20 @@
 """Band design (EN 13848 bands as zero-phase FIR) and the partitioned streaming convolution."""
 
+import itertools
+
 import numpy as np
 import pytest
 from scipy import signal
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.inverse.band import (band_edges_hz, bandpass_power, design_grid, fir_taps,
-                                      half_length, truncation_error)
+from railgsa_ros.inverse.band import (
+    band_edges_hz,
+    bandpass_power,
+    design_grid,
+    fir_taps,
+    half_length,
+    truncation_error,
+)
 from railgsa_ros.inverse.convolve import PartitionedFir
 
 
@@ -67,7 +75,7 @@ def test_partitioned_fir_matches_convolution_for_any_chunking(length, shared):
     fir = PartitionedFir(taps, 2)
     cuts = np.unique(np.r_[0, rng.integers(0, x.shape[1], 30), np.arange(2040, 2060), 9000])
     parts = np.concatenate([fir.process(x[:, a:b]) for a, b in
-                            zip(cuts[:-1], cuts[1:], strict=True)], axis=1)
+                            itertools.pairwise(cuts)], axis=1)
     assert np.array_equal(parts, whole)  # bit-identical
 
 

@@ -1,6 +1,7 @@
-"""Feedback inversion (Eq. 5-7): stability analysis against exact arithmetic, paper mode, refusals."""
+"""Feedback inversion (Eq. 5-7): stability against exact arithmetic, paper mode, refusals."""
 
 from fractions import Fraction
+import itertools
 
 import numpy as np
 import pytest
@@ -68,7 +69,8 @@ def test_unstable_parameter_set_refused():
         FeedbackInverse(np.stack([NOMINAL, bad]), 1000.0, 1e-3)
 
 
-@pytest.mark.parametrize('method, why', [('analytical', 'D = 0'), ('flatness', 'relative degree 1')])
+@pytest.mark.parametrize('method, why', [('analytical', 'D = 0'),
+                                         ('flatness', 'relative degree 1')])
 def test_analytical_and_flatness_explain_why_not(method, why):
     with pytest.raises(ConfigError, match=why):
         InversionConfig(method=method)
@@ -96,7 +98,7 @@ def test_feedback_chunk_invariance():
     whole = FeedbackInverse(bank, 1000.0, 1e-3).process(y)
     inv = FeedbackInverse(bank, 1000.0, 1e-3)
     cuts = np.unique(np.r_[0, rng.integers(0, y.size, 40), np.arange(100, 110), y.size])
-    parts = np.concatenate([inv.process(y[a:b]) for a, b in zip(cuts[:-1], cuts[1:], strict=True)],
+    parts = np.concatenate([inv.process(y[a:b]) for a, b in itertools.pairwise(cuts)],
                            axis=1)
     # Eq. 7 forms u = K (y - C x): the 1e-5 cancellation limits agreement to ~1e-11 relative
     assert np.max(np.abs(parts - whole)) <= 1e-9 * np.max(np.abs(whole))

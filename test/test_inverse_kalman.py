@@ -1,4 +1,6 @@
-"""Kalman inversion (Appendix A.3): shaping filter against the German spectrum, filter, smoother."""
+"""Kalman inversion (Appendix A.3): shaping filter vs the German spectrum, filter, smoother."""
+
+import itertools
 
 import numpy as np
 import pytest
@@ -46,7 +48,7 @@ def test_filter_is_stable_and_chunk_invariant():
     whole = kf.process(y)
     kf.reset()
     cuts = np.unique(np.r_[0, np.random.default_rng(1).integers(0, y.size, 25), y.size])
-    parts = np.concatenate([kf.process(y[a:b]) for a, b in zip(cuts[:-1], cuts[1:], strict=True)],
+    parts = np.concatenate([kf.process(y[a:b]) for a, b in itertools.pairwise(cuts)],
                            axis=1)
     assert np.max(np.abs(parts - whole)) <= 1e-10 * np.max(np.abs(whole))
 
@@ -56,7 +58,8 @@ def test_smoother_beats_filter_and_tracks_truth():
     kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.02, 10.0)
     filt, smooth = kf.process(y)[0], kf.smooth(y)[0]
     mid = slice(3000, 9000)  # scored away from the ends, after removing the unobservable trend
-    detrend = (lambda z: z - np.polyval(np.polyfit(np.arange(z.size), z, 2), np.arange(z.size)))
+    def detrend(z):
+        return (z - np.polyval(np.polyfit(np.arange(z.size), z, 2), np.arange(z.size)))
     e_filt = np.std(detrend(filt[mid] - truth[mid]))
     e_smooth = np.std(detrend(smooth[mid] - truth[mid]))
     assert e_smooth < 0.5 * e_filt

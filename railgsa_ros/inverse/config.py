@@ -44,13 +44,13 @@ class InversionConfig:
     speed_mps: float = _p(20.0, 'speed used when no odometry is given, m/s', (0.0, 200.0))
     min_design_speed_mps: float = _p(10.0, 'band held at this speed below it; sets delay, m/s',
                                      (0.5, 200.0))
-    speed_tolerance: float = _p(0.02, 'relative speed change that triggers a filter redesign',
+    speed_tolerance: float = _p(0.005, 'relative speed change that triggers a filter redesign',
                                 (1e-4, 1.0))
     accel_axis: str = _p('z', 'IMU axis (with sign) pointing up in the car body', choices=AXES)
     gravity_mps2: float = _p(9.80665, 'gravity subtracted from the vertical axis, m/s^2',
                              (0.0, 20.0))
-    bias_time_constant_s: float = _p(0.0, 'band none: subtract a running-mean bias with this '
-                                          'time constant, s (0 = off)', (0.0, 1e4))
+    remove_bias: bool = _p(False, 'band none: subtract the running mean of the acceleration '
+                                  'since the (re)start, an estimate of a constant bias')
     taper_s: float = _p(0.5, 'raised-cosine fade-in after a (re)start and fade-out at flush, s',
                         (0.0, 60.0))
     noise_std_mps2: float = _p(5e-3, 'kalman: accel noise std when the IMU covariance is '

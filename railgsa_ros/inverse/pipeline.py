@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
-from scipy.signal import lfilter
 
 from railgsa_ros.inverse.band import (
     band_edges_hz,
@@ -130,6 +129,7 @@ class InversionPipeline:
         if cfg.band != 'none':
             vmin = cfg.min_design_speed_mps
             self._grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, vmin)[0])
+            self._inv_g: np.ndarray | None = None
             response = self._response(vmin)
             self.delay_samples = half_length(response, cfg.fir_tolerance)
             taps = fir_taps(response, self.delay_samples)
@@ -195,9 +195,10 @@ class InversionPipeline:
         bp = bandpass_power(self._grid, lo, hi, cfg.band_order)[None]
         if cfg.method != 'spectral':
             return bp
-        g = frequency_response(self.theta, 2j * np.pi * self._grid)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            return np.where(bp > 0, bp / g, 0.0)
+        if self._inv_g is None:  # 1/G on the design grid does not depend on the speed
+            g = frequency_response(self.theta, 2j * np.pi * self._grid[1:])
+            self._inv_g = np.concatenate([np.zeros((g.shape[0], 1)), 1.0 / g], axis=1)
+        return bp * self._inv_g  # G has its double zero at f = 0 only, where |BP|^2 = 0
 
     def _start_segment(self) -> None:
         """Zero the filters and the segment's sample counter."""
@@ -205,7 +206,7 @@ class InversionPipeline:
         self._meta = _Meta()
         self._meta_start = 0  # segment index of the oldest sample in the delay line
         self._last_a = 0.0
-        self._bias = None
+        self._bias = (0.0, 0)  # running sum (m/s^2) and count of the segment's samples
         self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
         if self._stage is not None:
             self._stage.reset()
@@ -218,7 +219,7 @@ class InversionPipeline:
         stamps, speed = clean.stamps_ns[sl], clean.speed[sl]
         chain = self._chainage(stamps, speed)
         a_s = clean.accel[sl] - cfg.gravity_mps2
-        if cfg.band == 'none' and cfg.bias_time_constant_s > 0:
+        if cfg.band == 'none' and cfg.remove_bias:
             a_s = self._remove_bias(a_s)
         n0 = self._n + sum(x[0].size for x in self._offline)
         a_s = a_s * taper(n0 + np.arange(a_s.size), round(cfg.taper_s * cfg.rate_hz))
@@ -239,12 +240,13 @@ class InversionPipeline:
         return chain
 
     def _remove_bias(self, a_s: np.ndarray) -> np.ndarray:
-        """Subtract an exponential running mean with time constant bias_time_constant_s."""
-        alpha = 1.0 - np.exp(-self.dt / self.config.bias_time_constant_s)
-        if self._bias is None:
-            self._bias = np.array([(1.0 - alpha) * a_s[0]])  # start at the first sample
-        mean, self._bias = lfilter([alpha], [1.0, alpha - 1.0], a_s, zi=self._bias)
-        return a_s - mean
+        """Subtract the running mean of the segment so far (m/s^2): exact for a constant bias,
+        unlike an exponential mean, whose decaying residual the double integration amplifies."""
+        total, count = self._bias
+        sums = total + np.cumsum(a_s)
+        counts = count + np.arange(1, a_s.size + 1)
+        self._bias = (float(sums[-1]), int(counts[-1]))
+        return a_s - sums / counts
 
     def _advance(self, a_s: np.ndarray, stamps: np.ndarray, chain: np.ndarray,
                  speed: np.ndarray, emit: np.ndarray, u: np.ndarray | None = None) -> Output:
