@@ -114,10 +114,11 @@ def _design(rule: str, n: int, order: int, fit: str, size: int | None, seed: int
         return xi, w, 'projection'
     fit = 'ols' if fit in ('auto', 'projection') else fit
     if rule != 'lstsq' and xi.shape[0] < OVERSAMPLING * terms:
-        warnings.warn(f'rule {rule} with {xi.shape[0]} points cannot project order {order} '
-                      f'exactly; fitting by {fit} on its points plus '
-                      f'{OVERSAMPLING * terms - xi.shape[0]} Sobol\' points', AliasingWarning,
-                      stacklevel=3)
+        if not projectable:
+            warnings.warn(f'rule {rule} with {xi.shape[0]} points cannot project order {order} '
+                          f'exactly; fitting by {fit} on its points plus '
+                          f'{OVERSAMPLING * terms - xi.shape[0]} Sobol\' points',
+                          AliasingWarning, stacklevel=3)
         extra = sobol(n, OVERSAMPLING * terms - xi.shape[0], seed, germ)
         xi = np.concatenate([xi, extra])
     return xi, np.full(len(xi), 1.0 / len(xi)), fit
@@ -127,7 +128,10 @@ def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: s
             delta: bool | str = True, n_mc: int = 100_000, seed: int | None = 0,
             fit: str = 'auto', size: int | None = None, delta_samples: int = 400_000,
             germ: str = 'hermite') -> Result:
-    """Fit a Hermite PCE of total ``order`` to ``model`` and derive every statistic from it.
+    """Fit a PCE of total ``order`` to ``model`` and derive every statistic from it.
+
+    Regression fits (ols, omp) on a quadrature rule add scrambled Sobol' points up to twice
+    the number of terms.
 
     rule: pem3 | pem5 | gauss | lstsq (``size`` points); fit: auto | projection | ols | omp;
     delta: True or 'surrogate' (double-loop Monte Carlo on the surrogate, ``delta_samples``
@@ -142,6 +146,8 @@ def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: s
         raise ConfigError(f'delta: expected True, False, "surrogate" or "pem5", got {delta!r}')
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:
         raise ConfigError(f'order: expected an integer >= 1, got {order!r}')
+    if delta == 'pem5' and germ != 'hermite':
+        raise ConfigError('delta: the conditional PEM5 design needs germ hermite')
     n = len(dists)
     xi, w, used = _design(rule, n, order, fit, size, seed, germ)
     cond = conditional_design(n) if delta == 'pem5' else None
