@@ -1,14 +1,16 @@
 """bag_replay_node and ``railgsa replay`` against bags written by rosbags and mcap_ros2.
 
 A raw subscriber in the test process receives what the node publishes; the truth is what the
-bag writers were given (test_playback_bags). Timing is checked loosely here (receive span within
-25 % + 50 ms of the bag span / rate); fidelity figures: benchmarks/bench_replay_timing.py.
+bag writers were given (test_playback_bags). Timing is checked loosely here (the receive span is
+the bag span / rate, never shorter, at most 50 % + 0.3 s longer on a loaded machine); fidelity
+figures: benchmarks/bench_replay_timing.py.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import threading
@@ -88,7 +90,7 @@ def test_replay_delivers_every_message_with_bag_timing(kind: str, rate: float, t
     assert sink.raws('/imu/data') == [raw for _, _, raw in written]
     span = (sink.got['/imu/data'][-1][0] - sink.got['/imu/data'][0][0]) / NS
     ideal = 0.999 / rate
-    assert abs(span - ideal) < 0.25 * ideal + 0.05
+    assert 0.9 * ideal - 0.02 < span < 1.5 * ideal + 0.3, span  # paced, not a burst
 
 
 def test_topics_and_remap(tmp_path: Path, ros_context: Any, spin: Any) -> None:
@@ -204,3 +206,21 @@ def test_cli_missing_bag_subprocess(tmp_path: Path, ros_domain: int) -> None:
                            '--rate', '2'], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip() == f'error: {missing}: no such bag'
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_cli_loop_stops_cleanly_on_signal(sig: int, tmp_path: Path, ros_context: Any,
+                                          spin: Any, wait_for: Any) -> None:
+    write_rosbags(tmp_path / 'bag', 100)
+    sink = Sink(ros_context, spin, {'/imu/data': imu_class()})
+    proc = subprocess.Popen([sys.executable, '-m', 'railgsa_ros.cli.main', 'replay',
+                             str(tmp_path / 'bag'), '--loop'], stderr=subprocess.PIPE, text=True)
+    try:
+        assert wait_for(lambda: len(sink.got['/imu/data']) > 150, 30.0)
+        proc.send_signal(sig)
+        err = proc.communicate(timeout=20)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and 'Traceback' not in err
+    assert 'published' in err.strip().splitlines()[-1]

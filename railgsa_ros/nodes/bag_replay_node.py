@@ -11,7 +11,10 @@ ROS installation cannot import are skipped with a warning. The node exits when t
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 import importlib
+import signal
 import sys
 import threading
 import time
@@ -23,6 +26,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from railgsa_ros.errors import InputError, RailGsaError
@@ -68,6 +72,27 @@ def message_class(msgtype: str) -> Any | None:
         return None
 
 
+@contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """SIGINT/SIGTERM set ``stop`` (no exception mid-write) until the block ends; the previous
+    handlers are restored. Outside the main thread signals are left alone."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = [signal.signal(s, lambda *_: stop.set()) for s in signals]
+    try:
+        yield
+    finally:
+        for sig, handler in zip(signals, previous, strict=True):
+            signal.signal(sig, handler)
+
+
+def init(args: list[str] | None) -> None:
+    """rclpy.init without rclpy's own signal handlers (stop_on_signals handles them)."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+
+
 def final_note(node: Node, text: str) -> None:
     """Log ``text``, or print it to stderr once a signal has shut the context down."""
     if node.context.ok():
@@ -89,8 +114,9 @@ def qos_profile(choice: QosChoice) -> QoSProfile:
 class BagReplayNode(Node):
     """Opens the bag and creates one publisher per playable topic; ``play()`` replays it."""
 
-    def __init__(self, **kwargs: Any) -> None:
-        """Read the parameters and open the bag (InputError/ConfigError naming it on failure)."""
+    def __init__(self, stop: threading.Event | None = None, **kwargs: Any) -> None:
+        """Read the parameters and open the bag (InputError/ConfigError naming it on failure);
+        setting ``stop`` ends ``play()``."""
         super().__init__(NAME, **kwargs)
         values = declare(self, SPECS)
         arrays = {name: self.declare_parameter(name, Parameter.Type.STRING_ARRAY,
@@ -103,7 +129,7 @@ class BagReplayNode(Node):
             duration_s=values['duration'], topics=tuple(arrays['topics']),
             remaps=parse_remaps(arrays['remaps']), clock_hz=values['clock_hz'])
         self.wait_s = values['wait_for_subscribers']
-        self._stop = threading.Event()
+        self._stop = stop or threading.Event()
         self.source = BagSource(values['bag_path'])
         try:
             self._setup()
@@ -187,21 +213,22 @@ class BagReplayNode(Node):
 
 
 def run(args: list[str] | None = None, parameters: list[Parameter] | None = None) -> int:
-    """Replay with ROS ``args`` and parameter overrides; 0 when done or interrupted.
-
-    RailGsaError propagates (the caller prints it and exits 2).
+    """Replay with ROS ``args`` and parameter overrides; 0 when done or stopped by SIGINT or
+    SIGTERM. RailGsaError propagates (the caller prints it and exits 2).
     """
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = BagReplayNode(parameter_overrides=parameters or [])
-        node.play()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    stop = threading.Event()
+    with stop_on_signals(stop):
+        init(args)
+        node = None
+        try:
+            node = BagReplayNode(stop, parameter_overrides=parameters or [])
+            node.play()
+        except ExternalShutdownException:
+            pass
+        finally:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from functools import partial
 import sys
+import threading
 import time
 from typing import Any
 
@@ -30,7 +31,7 @@ from rosbags.interfaces import (
 )
 
 from railgsa_ros.errors import ConfigError, RailGsaError
-from railgsa_ros.nodes.bag_replay_node import final_note, message_class
+from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class, stop_on_signals
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import output_qos, sensor_qos
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
@@ -136,26 +137,29 @@ class RecorderNode(Node):
 def run(args: list[str] | None = None, parameters: list[Parameter] | None = None) -> int:
     """Record until ``duration`` or SIGINT/SIGTERM; 0 with the bag closed and readable.
 
-    RailGsaError (bad output path, write error) propagates after the finished files are made
-    safe; the caller prints it and exits 2.
+    Signals only set a flag, so a message is never cut mid-write. RailGsaError (bad output path,
+    write error) propagates after the finished files are made safe; the caller prints it and
+    exits 2.
     """
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = RecorderNode(parameter_overrides=parameters or [])
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.done:
-            executor.spin_once(timeout_sec=DISCOVERY_S)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            try:
-                node.finish()
-            finally:
-                node.destroy_node()
-        rclpy.try_shutdown()
+    stop = threading.Event()
+    with stop_on_signals(stop):
+        init(args)
+        node = None
+        try:
+            node = RecorderNode(parameter_overrides=parameters or [])
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            while not (stop.is_set() or node.done) and rclpy.ok():
+                executor.spin_once(timeout_sec=DISCOVERY_S)
+        except ExternalShutdownException:
+            pass
+        finally:
+            if node is not None:
+                try:
+                    node.finish()
+                finally:
+                    node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 
