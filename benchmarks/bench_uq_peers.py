@@ -100,6 +100,9 @@ def main() -> None:
             [(f'N={n}', ours(ishigami, dists, dict(rule='lstsq', order=10, fit='omp', size=n,
                                                   germ='legendre')))
              for n in (40, 60, 80, 100, 150, 200)], ISHIGAMI),
+        'railgsa lstsq+OLS (Legendre)': first_pass(
+            [(f'p={p}', ours(ishigami, dists, dict(rule='lstsq', order=p, germ='legendre')))
+             for p in range(6, 13)], ISHIGAMI),
         'railgsa gauss (Legendre)': first_pass(
             [(f'p={p}', ours(ishigami, dists, dict(rule='gauss', order=p, germ='legendre')))
              for p in range(4, 11)], ISHIGAMI),
