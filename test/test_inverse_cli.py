@@ -1,0 +1,84 @@
+"""``railgsa invert``: CSV and bag outputs against the pipeline, options, errors."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+from railgsa_ros.bag import write_run
+from railgsa_ros.cli.main import main
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.pipeline import InversionPipeline, vertical
+from railgsa_ros.inverse.score import score
+from railgsa_ros.scenario import run_scenario
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory):
+    run = run_scenario('german-low', 25.0, 8.0, 500.0, 'adxl355', seed=2,
+                       defects='dip@100:len=6:depth=8e-3', start_ns=1_700_000_000 * 10**9)
+    path = tmp_path_factory.mktemp('bags') / 'run'
+    write_run(path, run)
+    return path, run
+
+
+def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
+    lines = path.read_text().splitlines()
+    return lines, np.loadtxt(lines[1:], delimiter=',', ndmin=2)
+
+
+def test_csv_with_odometry_tracks_truth(bag, tmp_path):
+    path, run = bag
+    out = tmp_path / 'u.csv'
+    assert main(['invert', str(path), '--csv', str(out), '--method', 'feedback']) == 0
+    lines, data = read_csv(out)
+    assert lines[0] == 't_s,chainage_m,u_m'
+    stamps = np.array([int(line.split(',')[0].replace('.', '')) for line in lines[1:]])
+    assert np.array_equal(stamps, run.stamps_ns)
+    # odometry at 50 Hz, held: chainage within a few cm of the true travel
+    travel = run.chainage_m - run.chainage_m[0]
+    assert np.max(np.abs(data[:, 1] - travel)) < 0.05
+    s = score(data[:, 1] + run.chainage_m[0], data[:, 2], run.chainage_m, run.truth_u_m,
+              margin_m=50.0)
+    assert s.rmse < 0.3e-3 and s.correlation > 0.95
+
+
+def test_csv_is_the_streaming_pipeline(bag, tmp_path):
+    path, run = bag
+    out = tmp_path / 'u.csv'
+    assert main(['invert', str(path), '--csv', str(out), '--speed', '25']) == 0
+    _, data = read_csv(out)
+    rate = 1e9 / np.median(np.diff(run.stamps_ns))  # the CLI takes the rate from the bag
+    pipe = InversionPipeline(InversionConfig(rate_hz=rate, speed_mps=25.0))
+    outs = [pipe.push(run.stamps_ns, vertical(run.accel, 'z')), pipe.flush()]
+    assert np.allclose(data[:, 2], np.concatenate([o.u_m for o in outs]), rtol=0, atol=1e-12)
+
+
+def test_bag_output_has_the_node_topic(bag, tmp_path):
+    path, run = bag
+    out = tmp_path / 'inv'
+    assert main(['invert', str(path), '--out', str(out), '--speed', '25']) == 0
+    with AnyReader([out]) as reader:
+        msgs = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages()]
+        assert {c.topic for c in reader.connections} == {'/track/irregularity'}
+    assert len(msgs) == run.stamps_ns.size
+    t, msg = msgs[10]
+    assert msg.header.frame_id == 'track'
+    assert t == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == run.stamps_ns[10]
+    assert msg.point.x == pytest.approx(25.0 * (run.stamps_ns[10] - run.stamps_ns[0]) * 1e-9)
+
+
+def test_errors_name_the_file(bag, tmp_path, capsys):
+    path, _ = bag
+    assert main(['invert', str(tmp_path / 'missing'), '--csv', str(tmp_path / 'x.csv')]) == 2
+    assert 'missing' in capsys.readouterr().err
+    params = tmp_path / 'p.yaml'
+    params.write_text('irregularity_node:\n  ros__parameters:\n    gain: -3.0\n')
+    assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), '--params',
+                 str(params), '--method', 'feedback']) == 2
+    err = capsys.readouterr().err
+    assert 'p.yaml' in err and 'gain' in err
+    assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), '--imu-topic',
+                 '/nope']) == 2
+    assert not (tmp_path / 'x.csv').exists()
