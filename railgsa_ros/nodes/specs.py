@@ -1,0 +1,56 @@
+"""Parameter specs shared by irregularity_node and uncertainty_node (same names and defaults).
+
+- INVERSION_SPECS: one per InversionConfig field (defaults = config/irregularity.yaml).
+- VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults.
+- NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, QoS depths).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import fields
+from typing import Any
+
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.nodes.params import ParamSpec
+from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, SENSOR_DEPTH
+from railgsa_ros.vehicle import PARAM_NAMES, PARAM_UNITS, VehicleParams, load_vehicle
+
+_VEHICLE_BOUNDS = {'m_s': (100.0, 1e5), 'm_us': (10.0, 1e4), 'k_s': (1e4, 1e8),
+                   'k_us': (1e6, 1e10), 'c': (1e2, 1e7)}
+_VEHICLE_DOCS = {'m_s': 'sprung (car-body) mass', 'm_us': 'unsprung (wheelset) mass',
+                 'k_s': 'suspension stiffness', 'k_us': 'wheel-rail contact stiffness',
+                 'c': 'suspension damping'}
+
+INVERSION_SPECS = tuple(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'],
+                                  f.metadata['choices']) for f in fields(InversionConfig))
+VEHICLE_SPECS = tuple(ParamSpec(n, getattr(VehicleParams(), n),
+                                f'{_VEHICLE_DOCS[n]}, {PARAM_UNITS[n]}', _VEHICLE_BOUNDS[n])
+                      for n in PARAM_NAMES)
+NODE_SPECS = (
+    ParamSpec('vehicle_file', '', 'YAML file with a "vehicle:" section; when set, its values '
+              'replace m_s, m_us, k_s, k_us, c at start-up', read_only=True),
+    ParamSpec('use_odom', True, 'take the speed from odom (twist.twist.linear.x); speed_mps is '
+              'the fallback while no odometry arrives', read_only=True),
+    ParamSpec('odom_timeout_s', 1.0, 'odometry older than this (IMU stamp minus odom stamp) is '
+              'missing, s', (0.01, 3600.0)),
+    ParamSpec('wrong_frame_policy', 'reject', 'what to do with IMU samples whose frame_id is '
+              'not frame_id (counted and warned once either way)', choices=('reject', 'accept')),
+    ParamSpec('imu_qos_depth', SENSOR_DEPTH, 'imu/data reader history (BEST_EFFORT), samples',
+              (MIN_SENSOR_DEPTH, 100_000), read_only=True),
+    ParamSpec('output_qos_depth', OUTPUT_DEPTH, 'per-sample output writer history (RELIABLE), '
+              'samples', (1, 100_000), read_only=True),
+    ParamSpec('hardware_id', 'imu', 'hardware_id on /diagnostics', read_only=True),
+)
+
+
+def inversion_config(values: Mapping[str, Any]) -> InversionConfig:
+    """The InversionConfig of parameter ``values``; ConfigError with the reason if invalid."""
+    return InversionConfig.from_mapping({s.name: values[s.name] for s in INVERSION_SPECS})
+
+
+def vehicle_values(values: Mapping[str, Any]) -> dict[str, float]:
+    """m_s..c from ``vehicle_file`` when set (ConfigError naming the file), else from values."""
+    if values['vehicle_file']:
+        return load_vehicle(values['vehicle_file']).as_dict()
+    return VehicleParams(**{n: values[n] for n in PARAM_NAMES}).as_dict()
