@@ -35,18 +35,24 @@ def band_distance(u: np.ndarray, dx: float, band: str = 'd1', order: int = 2) ->
     return fft.irfft(fft.rfft(u, n) * bandpass_power(k, 1 / lmax, 1 / lmin, order), n)[:u.size]
 
 
-def exact_inverse(a_s: np.ndarray, dt: float, speed_mps: float, band: str = 'd1',
+def exact_inverse(stamps_ns: np.ndarray, a_s: np.ndarray, speed_mps: float, band: str = 'd1',
                   order: int = 2, vehicle: VehicleParams | np.ndarray | None = None
                   ) -> np.ndarray:
-    """Exact-physics baseline: FFT of the whole record divided by G(j w), band-limited (m)."""
+    """Exact-physics baseline (m) at the stamps: the whole record, linearly resampled to its
+    median period (fills dropouts), FFT divided by G(j w) and band-limited at a constant speed."""
     theta = VehicleParams().as_array() if vehicle is None else np.asarray(vehicle)
+    t = (np.asarray(stamps_ns) - stamps_ns[0]) * 1e-9
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(0.0, t[-1] + dt / 2, dt)
+    a_u = np.interp(grid, t, a_s)
     lmin, lmax = BANDS_M[band]
-    n = fft.next_fast_len(2 * a_s.size, real=True)
+    n = fft.next_fast_len(2 * grid.size, real=True)
     f = fft.rfftfreq(n, dt)
     bp = bandpass_power(f, speed_mps / lmax, speed_mps / lmin, order)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        w = np.where(bp > 0, bp / frequency_response(theta, 2j * np.pi * f), 0.0)
-    return fft.irfft(fft.rfft(a_s - np.mean(a_s), n) * w, n)[:a_s.size]
+    w = np.zeros(f.size, complex)
+    w[1:] = bp[1:] / frequency_response(theta, 2j * np.pi * f[1:])
+    u = fft.irfft(fft.rfft(a_u - np.mean(a_u), n) * w, n)[:grid.size]
+    return np.interp(t, grid, u)
 
 
 def score(chainage_rec: np.ndarray, u_rec: np.ndarray, chainage_true: np.ndarray,
