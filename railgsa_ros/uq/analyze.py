@@ -32,6 +32,7 @@ from railgsa_ros.uq.rules import exact_degree, make_rule
 FITS = ('auto', 'projection', 'ols', 'omp')
 DELTAS = (True, False, 'surrogate', 'pem5')
 OVERSAMPLING = 2  # regression points per PCE term when PEM nodes must be augmented
+_DELTA_VALUES = 2 ** 24  # surrogate outputs held at once by the delta double loop
 
 Model = Callable[[np.ndarray], np.ndarray]
 
@@ -167,7 +168,11 @@ def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: s
     pce = PCE(alpha, coef, germ)
     samples = pce(sobol(n, n_mc, seed, germ))
     if delta in (True, 'surrogate'):
-        d = delta_indices(pce, n, delta_samples, seed=seed, germ=germ)
+        # outputs in chunks: the double loop holds n * delta_samples values per output
+        step = max(1, _DELTA_VALUES // (n * delta_samples))
+        d = np.concatenate([delta_indices(PCE(alpha, coef[:, j:j + step], germ), n,
+                                          delta_samples, seed=seed, germ=germ)
+                            for j in range(0, coef.shape[1], step)])
     elif cond is not None:
         d = delta_conditional(cond, y[len(xi):], pce, seed=seed)
     else:

@@ -111,8 +111,8 @@ def delta_indices(func: Callable[[np.ndarray], np.ndarray], n: int, n_mc: int = 
     """
     ref = paired_sobol(n, n_mc // 2, seed, germ)
     y_ref = np.atleast_2d(func(ref).T).T
-    inner = paired_sobol(n, max(n_mc // (2 * n_outer), 8), None if seed is None else seed + 1,
-                           germ)
+    inner_seed = None if seed is None else seed + 1
+    inner = paired_sobol(n, max(n_mc // (2 * n_outer), 8), inner_seed, germ)
     n_inner = inner.shape[0]
     nodes = from_unit((np.arange(n_outer) + 0.5) / n_outer, germ)
     xi = np.broadcast_to(inner, (n, n_outer, n_inner, n)).copy()
