@@ -94,7 +94,7 @@ def init(args: list[str] | None) -> None:
 
 
 def final_note(node: Node, text: str) -> None:
-    """Log ``text``, or print it to stderr once a signal has shut the context down."""
+    """Log ``text``, or print it to stderr when the context is already shut down."""
     if node.context.ok():
         node.get_logger().info(text)
     else:
