@@ -184,3 +184,19 @@ def test_write_error_exits_2_and_keeps_the_bag(tmp_path: Path, ros_context: Any,
         frames = {reader.deserialize(raw, 'sensor_msgs/msg/Imu').header.frame_id
                   for _, _, raw in reader.messages()}
     assert frames == {'x' * 1000}
+
+
+def test_sigint_during_start_up_leaves_a_readable_bag(tmp_path: Path, ros_domain: int,
+                                                      wait_for: Any) -> None:
+    bag = tmp_path / 'early'
+    proc = start_cli(['record', '--out', str(bag), '--topics', '/never'])
+    try:
+        assert wait_for(lambda: bag.exists() or proc.poll() is not None, 30.0)
+        proc.send_signal(signal.SIGINT)  # before any topic is found
+        err = proc.communicate(timeout=20)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and 'Traceback' not in err
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        assert reader.message_count == 0

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import threading
+
+from railgsa_ros.playback.signals import stop_on_signals
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,12 +30,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Record; 0 when finished or interrupted (RailGsaError -> exit 2 in the caller)."""
-    from rclpy.parameter import Parameter
+    stop = threading.Event()  # a signal during the imports below stops cleanly too
+    with stop_on_signals(stop):
+        from rclpy.parameter import Parameter
 
-    from railgsa_ros.nodes import recorder
+        from railgsa_ros.nodes import recorder
 
-    values = {'out': args.out, 'duration': args.duration, 'split': args.split,
-              'compress': args.compress}
-    params = [Parameter(k, value=v) for k, v in values.items()]
-    params.append(Parameter('topics', Parameter.Type.STRING_ARRAY, args.topics))
-    return recorder.run(args=[], parameters=params)
+        values = {'out': args.out, 'duration': args.duration, 'split': args.split,
+                  'compress': args.compress}
+        params = [Parameter(k, value=v) for k, v in values.items()]
+        params.append(Parameter('topics', Parameter.Type.STRING_ARRAY, args.topics))
+        return recorder.run(args=[], parameters=params, stop=stop)

@@ -11,10 +11,7 @@ ROS installation cannot import are skipped with a warning. The node exits when t
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 import importlib
-import signal
 import sys
 import threading
 import time
@@ -42,6 +39,7 @@ from railgsa_ros.playback.schedule import (
     select_topics,
     window,
 )
+from railgsa_ros.playback.signals import stop_on_signals
 from railgsa_ros.playback.source import BagSource
 
 NAME = 'bag_replay_node'
@@ -70,22 +68,6 @@ def message_class(msgtype: str) -> Any | None:
         return getattr(importlib.import_module(pkg.replace('/', '.')), name)
     except (ImportError, AttributeError, ValueError):
         return None
-
-
-@contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[None]:
-    """SIGINT/SIGTERM set ``stop`` (no exception mid-write) until the block ends; the previous
-    handlers are restored. Outside the main thread signals are left alone."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    signals = (signal.SIGINT, signal.SIGTERM)
-    previous = [signal.signal(s, lambda *_: stop.set()) for s in signals]
-    try:
-        yield
-    finally:
-        for sig, handler in zip(signals, previous, strict=True):
-            signal.signal(sig, handler)
 
 
 def init(args: list[str] | None) -> None:
@@ -212,11 +194,12 @@ class BagReplayNode(Node):
         super().destroy_node()
 
 
-def run(args: list[str] | None = None, parameters: list[Parameter] | None = None) -> int:
-    """Replay with ROS ``args`` and parameter overrides; 0 when done or stopped by SIGINT or
-    SIGTERM. RailGsaError propagates (the caller prints it and exits 2).
+def run(args: list[str] | None = None, parameters: list[Parameter] | None = None,
+        stop: threading.Event | None = None) -> int:
+    """Replay with ROS ``args`` and parameter overrides; 0 when done or stopped by SIGINT,
+    SIGTERM or ``stop``. RailGsaError propagates (the caller prints it and exits 2).
     """
-    stop = threading.Event()
+    stop = stop or threading.Event()
     with stop_on_signals(stop):
         init(args)
         node = None

@@ -31,11 +31,12 @@ from rosbags.interfaces import (
 )
 
 from railgsa_ros.errors import ConfigError, RailGsaError
-from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class, stop_on_signals
+from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import output_qos, sensor_qos
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
 from railgsa_ros.playback.schedule import absolute
+from railgsa_ros.playback.signals import stop_on_signals
 
 NAME = 'recorder'
 SPECS = (
@@ -134,14 +135,15 @@ class RecorderNode(Node):
         final_note(self, f'recorded {self.bag.message_count} messages into {self.bag.path}')
 
 
-def run(args: list[str] | None = None, parameters: list[Parameter] | None = None) -> int:
-    """Record until ``duration`` or SIGINT/SIGTERM; 0 with the bag closed and readable.
+def run(args: list[str] | None = None, parameters: list[Parameter] | None = None,
+        stop: threading.Event | None = None) -> int:
+    """Record until ``duration``, SIGINT/SIGTERM or ``stop``; 0 with the bag closed and readable.
 
     Signals only set a flag, so a message is never cut mid-write. RailGsaError (bad output path,
     write error) propagates after the finished files are made safe; the caller prints it and
     exits 2.
     """
-    stop = threading.Event()
+    stop = stop or threading.Event()
     with stop_on_signals(stop):
         init(args)
         node = None
