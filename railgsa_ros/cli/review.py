@@ -1,0 +1,119 @@
+"""``railgsa review``: an offline HTML report of a recorded run (no ROS, no DDS).
+
+Runs the streaming core of irregularity_node and uncertainty_node over the bag in chunks and
+writes DIR/report.html with its PNG figures (railgsa_ros.review, docs/review.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``review`` subcommand."""
+    p = subparsers.add_parser(
+        'review', help='offline review of a bag: HTML report with EN 13848-5 exceedances, '
+                       '200 m SD, uncertainty band, sensitivities, input health',
+        description='Reconstruct the irregularity of a recorded run with the nodes\' streaming '
+                    'core (offline, chunked) and write DIR/report.html with PNG figures: '
+                    'irregularity with its uncertainty band, EN 13848-5 AL/IL/IAL exceedances '
+                    'for the speed class, SD per 200 m, sensitivity indices along the run, the '
+                    'surrogate histogram at the worst location and input health; with --truth '
+                    'also the error figures and scores.')
+    p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory or .mcap/.db3 file')
+    p.add_argument('--out', required=True, metavar='DIR', help='report directory to create')
+    p.add_argument('--truth', metavar='BAG_OR_CSV',
+                   help='ground truth: a bag with /track/irregularity_truth or a CSV x_m,u_m '
+                        '(chainage from the run start)')
+    p.add_argument('--method', choices=('spectral', 'feedback', 'kalman'),
+                   help='inversion method (default: the params file, else spectral)')
+    p.add_argument('--band', choices=('d1', 'd2'),
+                   help='EN 13848 band (default: the params file, else d1)')
+    p.add_argument('--params', metavar='FILE',
+                   help='ROS params file: uncertainty_node and/or irregularity_node '
+                        'ros__parameters (inversion, rule, quantiles, windows)')
+    p.add_argument('--vehicle', metavar='FILE',
+                   help='nominal vehicle YAML (default: the params vehicle_file, else Table 1)')
+    p.add_argument('--uncertainty', metavar='FILE',
+                   help='uncertain parameters YAML (default: the params uncertainty_file, else '
+                        'Table 3 around the vehicle)')
+    p.add_argument('--no-uncertainty', action='store_true',
+                   help='nominal reconstruction only: no band, sensitivities or histogram')
+    p.add_argument('--limit-end', choices=('lower', 'upper'), default='lower',
+                   help='end of the EN 13848-5 AL/IL ranges to apply (default lower: strictest)')
+    p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
+    p.add_argument('--odom-topic', default='/odom', metavar='T', help='default /odom')
+    p.add_argument('--overwrite', action='store_true', help='replace an existing DIR')
+    bar = p.add_mutually_exclusive_group()
+    bar.add_argument('--progress', dest='progress', action='store_const', const=True,
+                     help='always draw the progress bar on stderr (default: only on a terminal)')
+    bar.add_argument('--no-progress', dest='progress', action='store_const', const=False,
+                     help='never draw the progress bar')
+    p.set_defaults(func=run, progress=None)
+
+
+def parameters(args: argparse.Namespace) -> dict[str, Any]:
+    """Params-file values (irregularity_node, then uncertainty_node on top), then the options."""
+    from railgsa_ros.config import load_yaml, ros_parameters
+
+    params: dict[str, Any] = {}
+    if args.params:
+        doc = load_yaml(args.params)
+        for node in ('irregularity_node', 'uncertainty_node'):
+            params.update(ros_parameters(doc, node))
+    for name in ('method', 'band'):
+        if getattr(args, name) is not None:
+            params[name] = getattr(args, name)
+    return params
+
+
+def build_options(args: argparse.Namespace) -> Any:
+    """ReviewOptions from the command line (ConfigError naming the option or file)."""
+    from dataclasses import fields
+
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.review.build import ReviewOptions
+    from railgsa_ros.uncertainty import UncertaintyConfig
+    from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
+    from railgsa_ros.vehicle import VehicleParams, load_vehicle
+
+    params = parameters(args)
+    known = {f.name for f in fields(UncertaintyConfig)} | {f.name for f in
+                                                          fields(InversionConfig)}
+    config = UncertaintyConfig.from_mapping({k: v for k, v in params.items() if k in known},
+                                            source=args.params or 'command line')
+    vehicle_file = args.vehicle or params.get('vehicle_file') or None
+    vehicle = load_vehicle(vehicle_file) if vehicle_file else VehicleParams()
+    dists = None
+    if not args.no_uncertainty:
+        source = args.uncertainty or params.get('uncertainty_file') or None
+        dists = load_uncertainty(source) if source else table3(vehicle)
+    return ReviewOptions(Path(args.bag), config, vehicle, dists,
+                         Path(args.truth) if args.truth else None, args.limit_end,
+                         imu_topic=args.imu_topic, odom_topic=args.odom_topic,
+                         rate_from_bag='rate_hz' not in params)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the review, write the report, print where it is and the headline numbers."""
+    from railgsa_ros.review.build import build_review, write_review
+    from railgsa_ros.review.exceedances import count_by_level
+    from railgsa_ros.review.progress import Progress
+
+    options = build_options(args)
+    bar = Progress(1000, 'review', enabled=args.progress)
+    try:
+        review = build_review(options, lambda stage, f: bar.update(round(1000 * f),
+                                                                   f'{stage:<10}'))
+        report = write_review(review, args.out, args.overwrite,
+                              lambda stage, f: bar.update(round(1000 * f), f'{stage:<10}'))
+    finally:
+        bar.close()
+    counts = count_by_level(review.exceedances)
+    levels = ', '.join(f'{level} {sum(c.values())}' for level, c in reversed(counts.items()))
+    total = sum(review.timings.values())
+    print(f'{report}\n  {review.duration_s:.1f} s of data reviewed in {total:.1f} s '
+          f'({review.duration_s / total:.0f}x real time); exceedances: {levels}')
+    return 0

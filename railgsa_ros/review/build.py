@@ -1,0 +1,177 @@
+"""A review end to end: read the bag, run the streaming core, analyse, write DIR/report.html.
+
+``build_review`` computes everything (no file written); ``write_review`` draws the figures and
+writes the HTML into a temporary directory that replaces DIR only when all of it succeeded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+import time
+
+import numpy as np
+
+from railgsa_ros.bag import read_imu
+from railgsa_ros.errors import InputError
+from railgsa_ros.fileio import atomic_output
+from railgsa_ros.review import figures
+from railgsa_ros.review.exceedances import Exceedance, find_exceedances
+from railgsa_ros.review.figures import ZOOM_M
+from railgsa_ros.review.health import InputHealth, input_health, stamp_stats
+from railgsa_ros.review.limits import Limits, en13848_limits
+from railgsa_ros.review.report import render_html
+from railgsa_ros.review.sections import Sections, section_sd
+from railgsa_ros.review.stream import ReviewRun, run_stream
+from railgsa_ros.review.truth import DX_M, Comparison, compare, load_truth
+from railgsa_ros.review.worst import WorstSurrogate, plot_worst, worst_surrogate
+from railgsa_ros.uncertainty import UncertaintyConfig
+from railgsa_ros.uq.distributions import Distribution
+from railgsa_ros.vehicle import VehicleParams
+
+REPORT = 'report.html'
+Progress = Callable[[str, float], None]  # (stage, fraction done)
+
+
+@dataclass(frozen=True)
+class ReviewOptions:
+    """What to review and how: bag (and truth) paths, the uncertainty node's configuration
+    (inversion included), nominal vehicle, uncertain parameters (None: no band), limit end
+    ('lower'/'upper' of the AL/IL ranges), section length (m), topics, and whether the IMU rate
+    comes from the bag."""
+
+    bag: Path
+    config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    dists: Mapping[str, Distribution] | None = None
+    truth: Path | None = None
+    limit_end: str = 'lower'
+    section_m: float = 200.0
+    imu_topic: str = '/imu/data'
+    odom_topic: str = '/odom'
+    rate_from_bag: bool = True  # replace config.inversion.rate_hz by the bag's median rate
+
+
+@dataclass(frozen=True)
+class Review:
+    """Everything a report shows (see ``render_html``): the options, the configuration in
+    effect, the results and the wall-clock seconds per stage."""
+
+    options: ReviewOptions
+    config: UncertaintyConfig
+    run: ReviewRun
+    imu_stamps_ns: np.ndarray
+    health: InputHealth
+    limits: Limits
+    exceedances: list[Exceedance]
+    sections: Sections
+    truth_sections: Sections | None
+    comparison: Comparison | None
+    worst: WorstSurrogate | None
+    timings: dict[str, float]
+
+    @property
+    def duration_s(self) -> float:
+        """Span of the IMU stamps (s)."""
+        return self.health.imu.span_s
+
+
+def build_review(options: ReviewOptions, progress: Progress | None = None) -> Review:
+    """Read, stream and analyse; InputError naming the file for unusable bags or truth."""
+    def tick(stage: str, fraction: float) -> None:
+        if progress is not None:
+            progress(stage, fraction)
+
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    tick('reading', 0.0)
+    stream = read_imu(options.bag, options.imu_topic, options.odom_topic)
+    timings['read'] = time.perf_counter() - start
+    imu = stamp_stats(stream.stamps_ns, options.config.inversion.gap_factor)
+    if not np.isfinite(imu.rate_hz):
+        raise InputError(f'{options.bag}: {options.imu_topic} needs at least two distinct stamps')
+    cfg = options.config
+    if options.rate_from_bag:
+        cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=imu.rate_hz))
+    total = stream.stamps_ns.size
+    run = run_stream(stream, cfg, options.vehicle, options.dists,
+                     progress=lambda done: tick('processing', done / total))
+    timings['stream'] = time.perf_counter() - start - timings['read']
+    tick('analysing', 1.0)
+    mark = time.perf_counter()
+    inv = cfg.inversion
+    health = input_health(stream.stamps_ns, stream.odom_stamps_ns, stream.speed_mps,
+                          run.counters, inv.gap_factor, stream.stamp_source)
+    limits = en13848_limits(inv.band, options.limit_end)
+    band = run.band
+    exceedances = find_exceedances(run.chainage_m, run.u_m, run.speed_mps, run.stamps_ns, limits,
+                                   None if band is None else band.lower_m,
+                                   None if band is None else band.upper_m)
+    sections = section_sd(run.chainage_m, run.u_m, run.speed_mps, options.section_m)
+    comparison = truth_sections = None
+    if options.truth is not None:
+        truth = load_truth(options.truth, int(run.stamps_ns[0]), float(run.chainage_m[0]))
+        comparison = compare(run.chainage_m, run.u_m, truth, inv.band)
+        truth_sections = section_sd(comparison.x_m, comparison.truth_m, None, options.section_m,
+                                    max_step_m=2 * DX_M)
+    worst = None
+    if run.worst is not None and run.design is not None:
+        worst = worst_surrogate(run.design, run.worst, cfg)
+    timings['analyse'] = time.perf_counter() - mark
+    return Review(options, cfg, run, stream.stamps_ns, health, limits, exceedances, sections,
+                  truth_sections, comparison, worst, timings)
+
+
+def closeup_centres(review: Review, count: int = 4) -> tuple[list[float], list[str]]:
+    """Chainages (m) and titles of the worst exceedances (by level, then |peak|; one per
+    close-up width), or of the largest |u| when nothing exceeds."""
+    ranked = sorted(review.exceedances, key=lambda e: (-e.severity, -abs(e.peak_u_m)))
+    picked: list[Exceedance] = []
+    for e in ranked:
+        if len(picked) < count and all(abs(e.peak_m - p.peak_m) > ZOOM_M for p in picked):
+            picked.append(e)
+    if picked:
+        return ([e.peak_m for e in picked],
+                [f'{e.level} ({e.confidence}) at {e.peak_m:.1f} m: {e.peak_u_m * 1e3:+.2f} mm'
+                 for e in picked])
+    k = int(np.argmax(np.abs(review.run.u_m)))
+    x = float(review.run.chainage_m[k])
+    return [x], [f'largest |u| at {x:.1f} m: {review.run.u_m[k] * 1e3:+.2f} mm (no exceedance)']
+
+
+def draw_figures(review: Review, folder: Path) -> dict[str, str]:
+    """Every PNG of the report into ``folder``; returns figure key -> file name."""
+    run, q = review.run, (review.config.lower_quantile, review.config.upper_quantile)
+    made = {
+        'overview': figures.plot_overview(folder / 'overview.png', run, review.limits,
+                                          review.exceedances, q),
+        'closeups': figures.plot_closeups(folder / 'closeups.png', run, review.limits,
+                                          *closeup_centres(review), q),
+        'sections': figures.plot_sections(folder / 'sections.png', review.sections,
+                                          review.limits, review.truth_sections),
+        'health': figures.plot_health(folder / 'health.png', review.imu_stamps_ns,
+                                      review.health),
+    }
+    if run.windows:
+        made['sensitivity'] = figures.plot_sensitivity(folder / 'sensitivity.png', run.windows)
+    if review.worst is not None:
+        made['histogram'] = plot_worst(folder / 'histogram.png', review.worst)
+    if review.comparison is not None:
+        made['truth'] = figures.plot_truth(folder / 'truth.png', review.comparison,
+                                           review.limits.band)
+    return {key: path.name for key, path in made.items()}
+
+
+def write_review(review: Review, out_dir: str | Path, overwrite: bool = False,
+                 progress: Progress | None = None) -> Path:
+    """Write DIR/report.html and its PNGs atomically; returns the report's path."""
+    start = time.perf_counter()
+    with atomic_output(out_dir, overwrite) as tmp:
+        tmp.mkdir()
+        if progress is not None:
+            progress('drawing', 1.0)
+        names = draw_figures(review, tmp)
+        review.timings['figures'] = time.perf_counter() - start
+        (tmp / REPORT).write_text(render_html(review, names), encoding='utf-8')
+    return Path(out_dir) / REPORT

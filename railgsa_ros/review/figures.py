@@ -1,0 +1,267 @@
+"""PNG figures of a review (matplotlib, Agg, no pyplot state). Lengths are shown in mm.
+
+Long signals are drawn as their min/max envelope over about ``PIXELS`` bins, which keeps every
+peak visible and the drawing time independent of the run length.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from railgsa_ros.review.exceedances import Exceedance
+from railgsa_ros.review.health import InputHealth
+from railgsa_ros.review.limits import LEVELS, Limits
+from railgsa_ros.review.sections import Sections
+from railgsa_ros.review.stream import ReviewRun
+from railgsa_ros.review.truth import Comparison
+from railgsa_ros.uncertainty import Sensitivity
+
+PIXELS = 1600  # envelope bins across a full-width panel
+DPI = 110
+MM = 1e3
+LEVEL_COLOURS = {'AL': '#e0a800', 'IL': '#e8590c', 'IAL': '#c92a2a'}
+BAND_COLOUR = '#74c0fc'
+LINE_COLOUR = '#1c3d5a'
+TRUTH_COLOUR = '#2b8a3e'
+ZOOM_M = 30.0  # half width of a defect close-up, m
+
+
+def _figure(width: float, height: float):
+    """A matplotlib Figure with an Agg canvas (thread-safe, no global state)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout='constrained')
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def envelope(x: np.ndarray, *ys: np.ndarray, bins: int = PIXELS) -> tuple[np.ndarray, ...]:
+    """(x (B,), then min (B,) and max (B,) of every y) over consecutive blocks of samples; the
+    input itself (min = max = y) when it has fewer than 2 * bins samples."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 2 * bins:
+        return (x, *(v for y in ys for v in (y, y)))
+    size = -(-x.size // bins)
+    count = -(-x.size // size)
+    pad = count * size - x.size
+
+    def blocks(y: np.ndarray, fill: float) -> np.ndarray:
+        y = np.asarray(y, dtype=float)
+        return np.concatenate([y, np.full(pad, fill)]).reshape(count, size)
+
+    out = [np.mean(blocks(x, x[-1]), axis=1)]
+    for y in ys:  # fmin/fmax skip NaN (a block of NaN stays NaN, without a warning)
+        b = blocks(y, np.nan)
+        out += [np.fmin.reduce(b, axis=1), np.fmax.reduce(b, axis=1)]
+    return tuple(out)
+
+
+def _signal(ax, x: np.ndarray, y: np.ndarray, **kw) -> None:
+    """A line, or its envelope as a filled area when it is long."""
+    xe, lo, hi = envelope(x, y)
+    if xe.size == np.size(x):
+        ax.plot(x, y, lw=0.8, **kw)
+    else:
+        ax.fill_between(xe, lo, hi, lw=0.6, **kw)
+
+
+def _band(ax, x: np.ndarray, lower: np.ndarray, upper: np.ndarray, label: str) -> None:
+    xe, lo, _, _, hi = envelope(x, lower, upper)
+    ax.fill_between(xe, lo, hi, color=BAND_COLOUR, alpha=0.5, lw=0, label=label)
+
+
+def _limit_lines(ax, x: np.ndarray, thresholds: np.ndarray) -> None:
+    """+-limits (K, 3) m as step lines, one colour per level (levels without values skipped)."""
+    xe, *bounds = envelope(x, *thresholds.T)
+    for j, level in enumerate(LEVELS):
+        value = bounds[2 * j + 1] * MM
+        if np.all(np.isnan(value)):
+            continue
+        ax.plot(xe, value, color=LEVEL_COLOURS[level], lw=0.9, ls='--', label=level)
+        ax.plot(xe, -value, color=LEVEL_COLOURS[level], lw=0.9, ls='--')
+
+
+def _band_label(quantiles: tuple[float, float]) -> str:
+    return f'{100 * quantiles[0]:g}-{100 * quantiles[1]:g} % band'
+
+
+def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[Exceedance],
+                  quantiles: tuple[float, float]) -> Path:
+    """Irregularity over chainage with the band, the limits and the exceedances; speed below."""
+    fig = _figure(11.0, 5.4)
+    ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    x = run.chainage_m
+    if run.band is not None:
+        _band(ax, x, run.band.lower_m * MM, run.band.upper_m * MM, _band_label(quantiles))
+    _signal(ax, x, run.u_m * MM, color=LINE_COLOUR, label='reconstruction')
+    _limit_lines(ax, x, limits.at(run.speed_mps))
+    for level in LEVELS:
+        picked = [e for e in exceedances if e.level == level]
+        if picked:
+            ax.scatter([e.peak_m for e in picked], [e.peak_u_m * MM for e in picked], s=28,
+                       color=LEVEL_COLOURS[level], edgecolor='k', lw=0.5, zorder=5,
+                       label=f'{level} exceedance ({len(picked)})')
+    ax.set_ylabel(f'irregularity {limits.band.upper()} [mm]')
+    ax.grid(alpha=0.3)
+    ax.legend(loc='upper right', fontsize=8, ncol=4)
+    _signal(ax_v, x, run.speed_mps * 3.6, color='0.3')
+    ax_v.set_ylabel('speed [km/h]')
+    ax_v.set_xlabel('chainage [m]')
+    ax_v.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_closeups(path: Path, run: ReviewRun, limits: Limits, centres: Sequence[float],
+                  titles: Sequence[str], quantiles: tuple[float, float]) -> Path:
+    """Close-ups of +-ZOOM_M around each centre chainage (m), every sample drawn."""
+    fig = _figure(11.0, 2.6 * -(-len(centres) // 2))
+    axes = np.atleast_1d(fig.subplots(-(-len(centres) // 2), 2, squeeze=False)).ravel()
+    x = run.chainage_m
+    for ax, centre, title in zip(axes, centres, titles, strict=False):
+        sel = (x >= centre - ZOOM_M) & (x <= centre + ZOOM_M)
+        if run.band is not None:
+            ax.fill_between(x[sel], run.band.lower_m[sel] * MM, run.band.upper_m[sel] * MM,
+                            color=BAND_COLOUR, alpha=0.5, lw=0, label=_band_label(quantiles))
+        ax.plot(x[sel], run.u_m[sel] * MM, color=LINE_COLOUR, lw=1.0, label='reconstruction')
+        _limit_lines(ax, x[sel], limits.at(run.speed_mps[sel]))
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel('chainage [m]')
+        ax.set_ylabel('mm')
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc='lower left')
+    for ax in axes[len(centres):]:
+        ax.set_visible(False)
+    return _save(fig, path)
+
+
+def plot_sections(path: Path, sections: Sections, limits: Limits,
+                  truth: Sections | None = None) -> Path:
+    """SD per section as bars against the EN 13848-5 alert range of each section's class."""
+    fig = _figure(11.0, 3.6)
+    ax = fig.subplots()
+    mid = sections.start_m + sections.length_m / 2
+    sd_range = limits.sd_at(sections.speed_mps) * MM
+    sd = sections.sd_m * MM
+    sd_range[np.isnan(sd)] = np.nan
+    colour = np.where(sd > sd_range[:, 1], LEVEL_COLOURS['IAL'],
+                      np.where(sd > sd_range[:, 0], LEVEL_COLOURS['AL'], '#4c6ef5'))
+    width = 0.8 * sections.length_m
+    ax.bar(mid, np.nan_to_num(sd), width=width, color=colour, label='reconstruction')
+    if not np.all(np.isnan(sd_range)):
+        ax.bar(mid, sd_range[:, 1] - sd_range[:, 0], bottom=sd_range[:, 0], width=width,
+               color='none', edgecolor='0.2', hatch='//', lw=0.6,
+               label='EN 13848-5 SD alert range [M]')
+    if truth is not None:
+        ax.plot(truth.start_m + truth.length_m / 2, truth.sd_m * MM, 'k_', ms=14, mew=2,
+                label='truth')
+    ax.set_xticks(np.append(sections.start_m, sections.start_m[-1] + sections.length_m))
+    ax.tick_params(axis='x', labelrotation=90 if len(sections) > 20 else 0, labelsize=8)
+    ax.set_xlabel('section boundaries: chainage [m]')
+    ax.set_ylabel(f'SD {limits.band.upper()} per {sections.length_m:g} m [mm]')
+    ax.grid(alpha=0.3, axis='y')
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_sensitivity(path: Path, windows: list[Sensitivity]) -> Path:
+    """Sobol' first and total indices and Borgonovo delta per window along the run; one column
+    per quantity of interest, one line per uncertain parameter."""
+    qois = list(dict.fromkeys(w.qoi for w in windows))
+    names = windows[0].names
+    fig = _figure(11.0, 6.0)
+    axes = fig.subplots(3, len(qois), sharex=True, squeeze=False)
+    for col, qoi in enumerate(qois):
+        ws = [w for w in windows if w.qoi == qoi]
+        mid = np.array([(w.chainage_start_m + w.chainage_end_m) / 2 for w in ws])
+        for row, (field, label) in enumerate((('sobol_first', 'Sobol first'),
+                                              ('sobol_total', 'Sobol total'),
+                                              ('delta', 'Borgonovo delta'))):
+            ax = axes[row, col]
+            values = np.array([getattr(w, field) for w in ws])
+            for j, name in enumerate(names):
+                ax.plot(mid, values[:, j], marker='.', ms=3, lw=0.9, label=name)
+            ax.set_ylim(-0.02, 1.02)
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+        axes[0, col].set_title(f'quantity of interest: {qoi}', fontsize=10)
+        axes[-1, col].set_xlabel('window centre: chainage [m]')
+    axes[0, 0].legend(fontsize=8, ncol=len(names))
+    return _save(fig, path)
+
+
+def plot_health(path: Path, stamps_ns: np.ndarray, health: InputHealth) -> Path:
+    """IMU samples per second with the gaps, the distribution of the jitter, and the rejected
+    samples."""
+    fig = _figure(11.0, 5.0)
+    grid = fig.add_gridspec(2, 2)
+    ax_t = fig.add_subplot(grid[0, :])
+    t = (np.asarray(stamps_ns) - np.min(stamps_ns)) * 1e-9
+    per_second = np.bincount(t.astype(np.int64))
+    ax_t.step(np.arange(per_second.size), per_second, where='post', color=LINE_COLOUR, lw=0.9,
+              label='IMU samples per second')
+    step = np.diff(stamps_ns) * 1e-6
+    period = 1e3 / health.imu.rate_hz
+    gaps = np.flatnonzero(step > health.gap_factor * period)
+    if gaps.size:
+        ax_t.plot(t[gaps], np.full(gaps.size, health.imu.rate_hz), 'v', color='#c92a2a', ms=6,
+                  label=f'gap ({gaps.size}, longest {health.imu.longest_gap_s * 1e3:.0f} ms)')
+    ax_t.set_ylim(0, 1.15 * max(per_second.max(), health.imu.rate_hz))
+    ax_t.set_xlabel('time since the first IMU stamp [s]')
+    ax_t.set_ylabel('samples per second')
+    ax_t.legend(fontsize=8, loc='lower right')
+    ax_t.grid(alpha=0.3)
+    ax_j = fig.add_subplot(grid[1, 0])
+    period = 1e3 / health.imu.rate_hz
+    regular = step[(step > 0) & (step <= 3 * period)] - period
+    ax_j.hist(regular * 1e3, bins=80, color='0.5', log=True)
+    ax_j.set_xlabel('step - nominal period [us]')
+    ax_j.set_ylabel('steps')
+    ax_r = fig.add_subplot(grid[1, 1])
+    counts = {**health.rejected, 'gap': health.counters.get('gap', 0),
+              'reset': health.counters.get('reset', 0)}
+    ax_r.barh(list(counts), list(counts.values()), color='#868e96')
+    for y, value in enumerate(counts.values()):
+        ax_r.text(value, y, f' {value}', va='center', fontsize=8)
+    ax_r.set_xlim(0, 1.2 * max(1, *counts.values()))
+    ax_r.set_xlabel('samples / events')
+    ax_r.set_title('rejected by the sanitiser', fontsize=9)
+    return _save(fig, path)
+
+
+def plot_truth(path: Path, comparison: Comparison, band: str) -> Path:
+    """Reconstruction against the band-filtered truth, their difference, and a close-up of the
+    largest defect."""
+    fig = _figure(11.0, 7.0)
+    ax_a, ax_e, ax_z = fig.subplots(3, 1, height_ratios=(2, 1, 2))
+    x, rec, truth = comparison.x_m, comparison.rec_m * MM, comparison.truth_m * MM
+    _signal(ax_a, x, truth, color=TRUTH_COLOUR, alpha=0.7, label=f'truth ({band.upper()})')
+    _signal(ax_a, x, rec, color=LINE_COLOUR, alpha=0.7, label='reconstruction')
+    ax_a.set_ylabel('mm')
+    ax_a.legend(fontsize=8, loc='upper right')
+    err = np.where(comparison.scored, rec - truth, np.nan)
+    rmse = comparison.score.rmse * MM
+    _signal(ax_e, x, err, color='#862e9c')
+    for sign in (-1, 1):
+        ax_e.axhline(sign * rmse, color='k', lw=0.8, ls=':')
+    ax_e.set_ylabel('error [mm]')
+    ax_e.set_title(f'reconstruction - truth (scored part; dotted: +-RMSE {rmse:.3f} mm)',
+                   fontsize=9)
+    sel = np.abs(x - comparison.defect_m) <= ZOOM_M
+    ax_z.plot(x[sel], truth[sel], color=TRUTH_COLOUR, lw=1.4, label='truth')
+    ax_z.plot(x[sel], rec[sel], color=LINE_COLOUR, lw=1.0, label='reconstruction')
+    ax_z.set_title(f'largest defect at {comparison.defect_m:.1f} m (peak error '
+                   f'{comparison.score.peak_error * MM:.3f} mm)', fontsize=9)
+    ax_z.set_xlabel('chainage [m]')
+    ax_z.set_ylabel('mm')
+    for ax in (ax_a, ax_e, ax_z):
+        ax.grid(alpha=0.3)
+    return _save(fig, path)

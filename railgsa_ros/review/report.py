@@ -1,0 +1,279 @@
+"""The review as one self-contained HTML page (inline CSS, PNGs next to it by relative links).
+
+Order: a summary an engineer reads in ten seconds, then the figures with their tables: limits and
+exceedances, 200 m standard deviations, uncertainty and sensitivity, input health, truth.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from html import escape
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from railgsa_ros import __version__
+from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level
+from railgsa_ros.review.limits import CLASS_UPPER_KMH, LEVELS, SOURCE, class_label, speed_class
+
+if TYPE_CHECKING:
+    from railgsa_ros.review.build import Review
+
+MM = 1e3
+MAX_ROWS = 200  # rows of the exceedance and section tables
+
+CSS = '''
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;max-width:1180px;margin:1.5em auto;
+padding:0 1em;color:#212529;line-height:1.45}
+h1{font-size:1.5em;margin-bottom:.2em}h2{font-size:1.2em;border-bottom:2px solid #dee2e6;
+padding-bottom:.2em;margin-top:2em}
+.sub{color:#6c757d;margin-top:0}
+.cards{display:grid;grid-template-columns:repeat(auto-fill,minmax(260px,1fr));gap:.7em}
+.card{border:1px solid #dee2e6;border-radius:6px;padding:.6em .8em;background:#f8f9fa}
+.card b{display:block;font-size:.8em;color:#6c757d;text-transform:uppercase;letter-spacing:.03em}
+.card span{font-size:1.15em}
+.IAL{color:#c92a2a;font-weight:600}.IL{color:#e8590c;font-weight:600}.AL{color:#b08800}
+table{border-collapse:collapse;font-size:.88em;margin:.6em 0}
+th,td{border:1px solid #dee2e6;padding:.25em .6em;text-align:right}
+th{background:#f1f3f5}td.l,th.l{text-align:left}
+img{max-width:100%;border:1px solid #e9ecef;margin:.4em 0}
+.note{font-size:.85em;color:#495057}
+'''
+
+
+def _mm(value: float, digits: int = 2) -> str:
+    return '-' if not np.isfinite(value) else f'{value * MM:.{digits}f}'
+
+
+def _table(header: list[str], rows: list[list[str]], left: int = 1) -> str:
+    """An HTML table; the first ``left`` columns are left-aligned. Cells are escaped."""
+    def cells(tag: str, row: list[str]) -> str:
+        return ''.join(f'<{tag}{" class=l" if j < left else ""}>{escape(str(c))}</{tag}>'
+                       for j, c in enumerate(row))
+    body = ''.join(f'<tr>{cells("td", r)}</tr>' for r in rows)
+    return f'<table><tr>{cells("th", header)}</tr>{body}</table>'
+
+
+def _card(title: str, value: str) -> str:
+    """A summary card; ``value`` is trusted HTML built here."""
+    return f'<div class=card><b>{escape(title)}</b><span>{value}</span></div>'
+
+
+def _figure(names: dict[str, str], key: str, alt: str) -> str:
+    return f'<img src="{escape(names[key])}" alt="{escape(alt)}">' if key in names else ''
+
+
+def _speed_classes(speed_mps: np.ndarray) -> str:
+    """'80 < v <= 120 km/h (100 %)' for the classes met, by share of samples."""
+    idx = speed_class(speed_mps)
+    values, counts = np.unique(idx, return_counts=True)
+    order = np.argsort(-counts)
+    return ', '.join(f'{class_label(int(values[i]))} ({100 * counts[i] / idx.size:.0f} %)'
+                     for i in order)
+
+
+def _summary(review: Review) -> str:
+    run, health = review.run, review.health
+    length = float(run.chainage_m[-1] - run.chainage_m[0])
+    v = run.speed_mps * 3.6
+    k = int(np.argmax(np.abs(run.u_m)))
+    worst_level = next((e for e in sorted(review.exceedances, key=lambda e: -e.severity)
+                        if e.start_m <= run.chainage_m[k] <= e.end_m), None)
+    worst = f'{run.u_m[k] * MM:+.2f} mm at {run.chainage_m[k]:.1f} m'
+    if worst_level is not None:
+        worst += f' (<span class={worst_level.level}>{worst_level.level}</span>)'
+    counts = count_by_level(review.exceedances)
+    exc = ', '.join(f'<span class={level}>{level} {sum(counts[level].values())}</span>'
+                    for level in reversed(LEVELS))
+    sd = review.sections.sd_m
+    cards = [
+        _card('run', f'{length / 1e3:.2f} km in {review.duration_s:.1f} s'),
+        _card('speed', f'{np.min(v):.0f}-{np.max(v):.0f} km/h (mean {np.mean(v):.0f})'),
+        _card('worst defect', worst),
+        _card('exceedances (central)', exc),
+        _card(f'SD per {review.sections.length_m:g} m',
+              f'max {_mm(np.nanmax(sd)) if np.any(np.isfinite(sd)) else "-"} mm '
+              f'over {np.sum(np.isfinite(sd))} sections'),
+    ]
+    if run.band is not None:
+        width = (run.band.upper_m - run.band.lower_m) * MM
+        j = int(np.argmax(width))
+        cards.append(_card('uncertainty (band width)',
+                           f'median {np.median(width):.2f} mm, max {width[j]:.2f} mm at '
+                           f'{run.chainage_m[j]:.0f} m'))
+    cards.append(_card('input', f'{health.imu.count} IMU samples at {health.imu.rate_hz:.0f} Hz, '
+                                f'{health.rejected_total} rejected, {health.imu.gaps} gaps'))
+    if review.comparison is not None:
+        s = review.comparison.score
+        cards.append(_card('vs truth', f'RMSE {s.rmse * MM:.3f} mm, r = {s.correlation:.3f}, '
+                                       f'peak error {s.peak_error * MM:.2f} mm'))
+    return f'<div class=cards>{"".join(cards)}</div>'
+
+
+def _limits_section(review: Review, names: dict[str, str]) -> str:
+    lim = review.limits
+    rows = [[class_label(i), *(_mm(x, 0) for x in lim.isolated_m[i]),
+             f'{_mm(lim.sd_range_m[i, 0], 1)}-{_mm(lim.sd_range_m[i, 1], 1)}']
+            for i in range(CLASS_UPPER_KMH.size)]
+    table = _table(['speed class', 'AL [mm]', 'IL [mm]', 'IAL [mm]', 'SD alert range [mm]'],
+                   rows)
+    counts = count_by_level(review.exceedances)
+    count_rows = [[level, *(str(counts[level][c]) for c in CONFIDENCES)]
+                  for level in reversed(LEVELS)]
+    listed = sorted(review.exceedances, key=lambda e: e.start_m)
+    exc_rows = [[e.level, e.confidence, f'{e.start_m:.1f}', f'{e.end_m:.1f}', f'{e.peak_m:.1f}',
+                 f'{e.peak_u_m * MM:+.2f}', f'{e.lower_m * MM:+.2f} / {e.upper_m * MM:+.2f}',
+                 f'{e.limit_m * MM:.0f}', f'{e.speed_kmh:.0f}'] for e in listed[:MAX_ROWS]]
+    more = (f'<p class=note>{len(listed) - MAX_ROWS} more not listed.</p>'
+            if len(listed) > MAX_ROWS else '')
+    band_note = ('The confidence compares the uncertainty band with the limit: certain = the '
+                 'whole band passes it, likely = the reconstruction passes it but the band '
+                 'reaches below, possible = only the band\'s far edge passes a limit.')
+    why = ('the strictest an infrastructure manager may choose: a screening of a reconstruction '
+           'should rather flag early than miss a defect' if lim.end == 'lower'
+           else 'the most lenient')
+    return f'''<h2>1. Irregularity and EN 13848-5 isolated defects</h2>
+{_figure(names, 'overview', 'irregularity over chainage')}
+{_figure(names, 'closeups', 'close-ups of the worst defects')}
+<p class=note>Mean-to-peak values of the {lim.band.upper()} band-filtered reconstruction against
+the limits of the speed class at each sample (speed from odometry). AL and IL are ranges in the
+standard; this report uses their <b>{lim.end}</b> end ({why}). Values: {escape(SOURCE)}.
+{band_note}</p>
+{_table(['level', *CONFIDENCES], count_rows)}
+{_table(['level', 'confidence', 'from [m]', 'to [m]', 'peak at [m]', 'peak [mm]',
+         'band at peak [mm]', 'limit [mm]', 'speed [km/h]'], exc_rows, left=2)}{more}
+<details><summary>Limits used ({lim.band.upper()}, {lim.end} end of the ranges) [M]</summary>
+{table}</details>'''
+
+
+def _sections_section(review: Review, names: dict[str, str]) -> str:
+    s, truth = review.sections, review.truth_sections
+    sd_range = review.limits.sd_at(s.speed_mps)
+    truth_sd = {round(x): v for x, v in zip(truth.start_m, truth.sd_m, strict=True)} \
+        if truth is not None else {}
+    rows = []
+    for i in range(min(len(s), MAX_ROWS)):
+        status = ('above range' if s.sd_m[i] > sd_range[i, 1] else
+                  'in alert range' if s.sd_m[i] > sd_range[i, 0] else
+                  'below' if np.isfinite(s.sd_m[i] + sd_range[i, 0]) else '-')
+        row = [f'{s.start_m[i]:.0f}', _mm(s.sd_m[i]), f'{100 * min(s.coverage[i], 1):.0f} %',
+               f'{s.speed_mps[i] * 3.6:.0f}', f'{_mm(sd_range[i, 0], 1)}-{_mm(sd_range[i, 1], 1)}',
+               status]
+        if truth is not None:
+            row.insert(2, _mm(truth_sd.get(round(s.start_m[i]), np.nan)))
+        rows.append(row)
+    header = ['from [m]', 'SD [mm]', 'covered', 'speed [km/h]', 'SD alert range [mm] [M]',
+              'status']
+    if truth is not None:
+        header.insert(2, 'truth SD [mm]')
+    return f'''<h2>2. Standard deviation per {s.length_m:g} m section</h2>
+{_figure(names, 'sections', 'standard deviation per section')}
+<p class=note>SD of the {review.limits.band.upper()} reconstruction resampled every 0.25 m;
+sections with less than half their length covered show no value. The alert ranges are the
+EN 13848-5 informative annex values from secondary sources [M].</p>
+{_table(header, rows, left=0)}'''
+
+
+def _uncertainty_section(review: Review, names: dict[str, str]) -> str:
+    run, cfg = review.run, review.config
+    if run.band is None:
+        return '<h2>3. Uncertainty and sensitivity</h2><p>No uncertain parameters: no band.</p>'
+    parts = [f'<h2>3. Uncertainty and sensitivity</h2>'
+             f'<p class=note>Band: {100 * cfg.lower_quantile:g}-{100 * cfg.upper_quantile:g} % '
+             f'quantiles of the PCE (rule {cfg.rule}, order {cfg.order}, '
+             f'{run.design.points} inverse filters as one bank) per sample; sensitivity per '
+             f'window of {cfg.window_length:g} {cfg.window_unit}.</p>',
+             _figure(names, 'sensitivity', 'sensitivity indices along the run')]
+    if run.windows:
+        rows = []
+        for qoi in dict.fromkeys(w.qoi for w in run.windows):
+            ws = [w for w in run.windows if w.qoi == qoi]
+            for j, name in enumerate(ws[0].names):
+                rows.append([qoi, name, *(f'{np.mean([getattr(w, f)[j] for w in ws]):.3f}'
+                                          for f in ('sobol_first', 'sobol_total', 'delta'))])
+        parts.append('<p class=note>Indices averaged over the windows:</p>'
+                     + _table(['QoI', 'parameter', 'Sobol first', 'Sobol total', 'delta'], rows,
+                              left=2))
+    if review.worst is not None:
+        w = review.worst
+        res = w.result
+        q = res.quantiles([cfg.lower_quantile, cfg.upper_quantile])
+        rows = [[name, f'{res.sobol_first[j]:.3f}', f'{res.sobol_total[j]:.3f}']
+                for j, name in enumerate(w.names)]
+        parts.append(f'''{_figure(names, 'histogram', 'surrogate histogram at the worst location')}
+<p class=note>Worst location {w.chainage_m:.1f} m (largest |PCE mean|): mean
+{float(res.mean):+.3f} mm, std {float(res.std):.3f} mm, {100 * cfg.lower_quantile:g}-
+{100 * cfg.upper_quantile:g} % [{q[0]:+.3f}, {q[1]:+.3f}] mm from {len(res.samples):,} surrogate
+samples.</p>{_table(['parameter', 'Sobol first', 'Sobol total'], rows)}''')
+    return '\n'.join(parts)
+
+
+def _health_section(review: Review, names: dict[str, str]) -> str:
+    h = review.health
+    rows = [['IMU', str(h.imu.count), f'{h.imu.rate_hz:.2f}', f'{h.imu.mean_rate_hz:.2f}',
+             f'{h.imu.jitter_std_s * 1e6:.1f}', f'{h.imu.jitter_max_s * 1e6:.1f}',
+             str(h.imu.gaps), f'{h.imu.longest_gap_s * 1e3:.1f}', str(h.imu.backwards)]]
+    if h.odom is not None:
+        o = h.odom
+        rows.append(['odometry', str(o.count), f'{o.rate_hz:.2f}', f'{o.mean_rate_hz:.2f}',
+                     f'{o.jitter_std_s * 1e6:.1f}', f'{o.jitter_max_s * 1e6:.1f}', str(o.gaps),
+                     f'{o.longest_gap_s * 1e3:.1f}', str(o.backwards)])
+    stamps = _table(['topic', 'messages', 'rate [Hz]', 'mean rate [Hz]', 'jitter std [us]',
+                     'jitter max [us]', 'gaps', 'longest gap [ms]', 'steps <= 0'], rows)
+    counters = _table(['counter', 'count'], [[k, str(v)] for k, v in sorted(h.counters.items())])
+    odom = ('no odometry: the configured speed was used' if h.odom is None else
+            f'speed {h.speed_min_mps * 3.6:.0f}-{h.speed_max_mps * 3.6:.0f} km/h')
+    return f'''<h2>4. Input health</h2>
+{_figure(names, 'health', 'input health')}
+<p class=note>Stamps from the {escape(h.stamp_source)}; {odom}. Gaps: steps above
+{h.gap_factor:g} nominal periods. The counters are the streaming
+pipeline's own (rejected samples by reason, gaps, resets, emitted).</p>
+{stamps}{counters}'''
+
+
+def _truth_section(review: Review, names: dict[str, str]) -> str:
+    c = review.comparison
+    if c is None:
+        return ''
+    s = c.score
+    rows = [['RMSE', f'{s.rmse * MM:.3f} mm'], ['correlation', f'{s.correlation:.4f}'],
+            ['peak error at the largest defect', f'{s.peak_error * MM:.3f} mm at '
+                                                 f'{c.defect_m:.1f} m'],
+            ['scored samples (0.25 m)', str(s.n)]]
+    return f'''<h2>5. Against the truth</h2>
+{_figure(names, 'truth', 'reconstruction against truth')}
+<p class=note>Truth from {escape(str(review.options.truth))}, filtered to the same
+{review.limits.band.upper()} band on distance (inverse.score); 100 m are left out at both
+ends.</p>{_table(['score', 'value'], rows)}'''
+
+
+def _footer(review: Review) -> str:
+    cfg, inv = review.config, review.config.inversion
+    t = review.timings
+    total = sum(t.values())
+    speed = review.duration_s / total if total > 0 else float('nan')
+    stages = ', '.join(f'{k} {v:.2f} s' for k, v in t.items())
+    vehicle = ', '.join(f'{k} {v:g}' for k, v in review.options.vehicle.as_dict().items())
+    uncertain = ', '.join(review.options.dists or {}) or 'none'
+    return f'''<h2>Settings</h2><p class=note>Method {inv.method}, band {inv.band}, gap policy
+{inv.gap_policy}, band delay {review.run.delay_samples} samples; vehicle {vehicle}; uncertain
+{escape(uncertain)}; rule {cfg.rule}. Review time {total:.1f} s ({stages}):
+{speed:.0f}x real time. railgsa_ros {__version__}.</p>'''
+
+
+def render_html(review: Review, names: dict[str, str]) -> str:
+    """The report page; ``names`` maps figure keys to PNG file names in the same directory."""
+    bag = review.options.bag
+    start = datetime.fromtimestamp(int(review.imu_stamps_ns[0]) / 1e9, UTC)
+    body = '\n'.join([
+        f'<h1>Track irregularity review: {escape(bag.name)}</h1>',
+        f'<p class=sub>{escape(str(bag))} &middot; first stamp {start:%Y-%m-%d %H:%M:%S} UTC '
+        f'&middot; EN 13848 {review.limits.band.upper()}, method '
+        f'{escape(review.config.inversion.method)}</p>',
+        _summary(review), _limits_section(review, names), _sections_section(review, names),
+        _uncertainty_section(review, names), _health_section(review, names),
+        _truth_section(review, names), _footer(review)])
+    return (f'<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>'
+            f'<meta name=viewport content="width=device-width,initial-scale=1">'
+            f'<title>Review {escape(bag.name)}</title><style>{CSS}</style></head>'
+            f'<body>\n{body}\n</body></html>\n')

@@ -1,0 +1,87 @@
+"""Ground truth for a review: a bag's ``/track/irregularity_truth`` or a profile CSV ``x_m,u_m``.
+
+A truth bag (point.x = chainage, point.z = irregularity, stamped like the IMU) is put on the
+review's chainage by one offset: its chainage at the run's first output stamp becomes the run's
+chainage there. A CSV has no stamps: its x_m must already count from the run's start (chainage 0
+at the first IMU sample, as the pipeline integrates the speed). Both are compared with the
+reconstruction in the same EN 13848 band by ``inverse.score``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from railgsa_ros.bag import TRUTH_TOPIC, read_stamped
+from railgsa_ros.bag.messages import POINT_STAMPED
+from railgsa_ros.errors import ConfigError, InputError
+from railgsa_ros.inverse.score import Score, band_distance, score
+from railgsa_ros.track import load_csv
+
+DX_M = 0.25  # scoring grid, m
+MARGIN_M = 100.0  # left out at both ends of the scored range (filter edges)
+DEFECT_M = 10.0  # window length around the largest truth defect for the peak error, m
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Irregularity u_m (N,) at increasing chainage_m (N,) on the review's chainage axis."""
+
+    source: Path
+    chainage_m: np.ndarray
+    u_m: np.ndarray
+
+
+def load_truth(path: str | Path, run_stamp_ns: int, run_chainage_m: float) -> Truth:
+    """Read a truth bag or CSV (see the module docstring); InputError naming the file when it is
+    missing, unreadable, empty or not increasing in chainage."""
+    path = Path(path)
+    if path.suffix.lower() == '.csv':
+        try:
+            x, u = load_csv(path)
+        except ConfigError as exc:
+            raise InputError(str(exc)) from None
+        return Truth(path, x, u)
+    data = read_stamped(path, TRUTH_TOPIC, POINT_STAMPED.msgtype)
+    if data.values.shape[0] < 2:
+        raise InputError(f'{path}: {TRUTH_TOPIC} has fewer than two messages')
+    order = np.argsort(data.stamps_ns, kind='stable')
+    stamps, x, u = data.stamps_ns[order], data.values[order, 0], data.values[order, 2]
+    if not np.all(np.isfinite(x) & np.isfinite(u)) or np.any(np.diff(x) <= 0):
+        raise InputError(f'{path}: {TRUTH_TOPIC} chainage (point.x) must be finite and '
+                         'increase with the stamps')
+    offset = float(np.interp(run_stamp_ns, stamps, x)) - run_chainage_m
+    return Truth(path, x - offset, u)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Reconstruction and band-filtered truth on a common grid x (N,) m, the scored part of the
+    grid (N,) (the ends are left out), the score and the chainage of the largest truth defect."""
+
+    x_m: np.ndarray
+    rec_m: np.ndarray
+    truth_m: np.ndarray
+    scored: np.ndarray
+    score: Score
+    defect_m: float
+
+
+def compare(chainage_m: np.ndarray, u_m: np.ndarray, truth: Truth, band: str) -> Comparison:
+    """Score the reconstruction against the truth in ``band`` (RMSE, correlation, peak error at
+    the largest defect of the band-filtered truth); InputError when they barely overlap."""
+    lo = max(chainage_m[0], truth.chainage_m[0])
+    hi = min(chainage_m[-1], truth.chainage_m[-1])
+    if hi - lo <= 2 * MARGIN_M + DEFECT_M:
+        raise InputError(f'{truth.source}: the truth overlaps the run over {max(hi - lo, 0):.0f} '
+                         f'm, fewer than the {2 * MARGIN_M + DEFECT_M:.0f} m needed to score')
+    x = np.arange(lo, hi, DX_M)
+    truth_band = band_distance(np.interp(x, truth.chainage_m, truth.u_m), DX_M, band)
+    rec = np.interp(x, chainage_m, u_m)
+    inner = (x >= lo + MARGIN_M) & (x <= hi - MARGIN_M)
+    peak = float(x[inner][np.argmax(np.abs(truth_band[inner]))])
+    result = score(chainage_m, u_m, truth.chainage_m, truth.u_m, band, DX_M, MARGIN_M,
+                   defect=(peak - DEFECT_M / 2, DEFECT_M))
+    return Comparison(x, rec, truth_band, inner, result, peak)
