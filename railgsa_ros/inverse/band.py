@@ -55,11 +55,9 @@ def impulse_response(response: np.ndarray) -> np.ndarray:
 def half_length(response: np.ndarray, tol: float) -> int:
     """Smallest D such that taps beyond lag +-D hold < tol of the impulse response's L1 norm."""
     h = np.abs(np.atleast_2d(impulse_response(response)))
-    n = h.shape[-1]
-    half = n // 2
-    lag = np.minimum(np.arange(n), n - np.arange(n))
-    mass = np.zeros((h.shape[0], half + 1))
-    np.add.at(mass, (slice(None), lag), h)  # |h| by |lag|, both sides together
+    half = h.shape[-1] // 2
+    mass = h[:, :half + 1].copy()  # |h| by |lag|, both sides together
+    mass[:, 1:half] += h[:, :half:-1]
     tail = np.cumsum(mass[:, ::-1], axis=-1)[:, ::-1] / mass.sum(-1, keepdims=True)
     beyond = np.append(tail[:, 1:], np.zeros((tail.shape[0], 1)), axis=-1)  # mass at lags > D
     return int(max(np.argmax(row < tol) for row in beyond))

@@ -55,12 +55,12 @@ class _Level:
             blocks.append(self.current)
         if new.size:
             # frame b = blocks b-1 and b of the input; block m uses frames m-1-q, q < n_part
-            frames = new - 1
-            offs = (frames - 1) * s - hist_start
-            rows = np.stack([hist[:, o:o + 2 * s] if o >= 0 else
-                             np.concatenate([np.zeros((hist.shape[0], -o)), hist[:, :o + 2 * s]],
-                                            axis=1) for o in offs], axis=0)
-            xs = fft.rfft(rows, axis=-1)  # (M, C, s + 1) oldest first
+            first_frame = (new[0] - 2) * s - hist_start  # frame of block m: x[(m-2)s, m s)
+            lead = max(0, -first_frame)  # zeros before the stream start
+            src = np.concatenate([np.zeros((hist.shape[0], lead)), hist], axis=1) if lead \
+                else hist
+            frames = sliding_window_view(src[:, first_frame + lead:], 2 * s, axis=-1)[:, ::s]
+            xs = fft.rfft(np.moveaxis(frames[:, :new.size], 1, 0), axis=-1)  # (M, C, s + 1)
             ext = np.concatenate([self.spectra[::-1], xs], axis=0)  # chronological
             k = self.n_part  # ext[k + i] is frame new[i] - 1
             acc = np.zeros_like(xs)
@@ -147,5 +147,5 @@ class PartitionedFir:
         for a in range(0, t_len, _HEAD_ROWS):
             b = min(a + _HEAD_ROWS, t_len)
             win = sliding_window_view(seg[:, a:b + h - 1], h, axis=-1)  # (C, b - a, h)
-            out[:, a:b] = (win * self._head_taps[:, None, :]).sum(-1)
+            out[:, a:b] = np.einsum('ctk,ck->ct', win, self._head_taps)
         return out

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from itertools import pairwise
 
 import numpy as np
 
@@ -250,39 +249,60 @@ class InversionPipeline:
 
     def _advance(self, a_s: np.ndarray, stamps: np.ndarray, chain: np.ndarray,
                  speed: np.ndarray, emit: np.ndarray, u: np.ndarray | None = None) -> Output:
-        """Method + band over one segment piece, split where filter redesigns may happen."""
+        """Method + band over one segment piece, split only where a filter is redesigned."""
         self._meta.extend(stamps, chain, speed, emit)
         per = self.switch_period
         n0 = self._n
         bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per) - n0
-        edges = np.unique(np.concatenate([[0], bounds, [a_s.size]]))
         outs = []
-        for lo, hi in pairwise(edges):
-            if (n0 + lo) % per == 0:
-                self._redesign(n0 + lo)
-            x = u[:, lo:hi] if u is not None else (
-                a_s[lo:hi] if self._stage is None else self._stage.process(a_s[lo:hi]))
-            if self._offset is None:
-                self._offset = np.atleast_2d(x)[:, :1].copy()
-            outs.append(self._band(np.atleast_2d(x) - self._offset))
+        lo = 0
+        for b in [*bounds.tolist(), a_s.size]:
+            if b < a_s.size and not self._redesign_due(n0 + b):
+                continue
+            if b > lo:
+                x = u[:, lo:b] if u is not None else (
+                    a_s[lo:b] if self._stage is None else self._stage.process(a_s[lo:b]))
+                if self._offset is None:
+                    self._offset = np.atleast_2d(x)[:, :1].copy()
+                outs.append(self._band(np.atleast_2d(x) - self._offset))
+            if b < a_s.size:
+                self._redesign(n0 + b)
+            lo = b
         return self._join(outs)
 
     def _speed_at(self, n: int) -> float:
         """Speed (m/s) of segment sample n, which is still in the delay line."""
         return float(self._meta.speed[n - self._meta_start])
 
-    def _redesign(self, n: int) -> None:
-        """At a switch boundary: redesign the band for the speed at the output sample n - D and
-        the Kalman gains for the speed at the newest sample n."""
+    def _targets(self, n: int) -> tuple[float | None, float | None]:
+        """Design speeds due at switch boundary n (None: keep): Kalman gains for the newest
+        sample n, band for the output sample n - D; both held at min_design_speed_mps."""
         cfg = self.config
-        if isinstance(self._stage, KalmanInverse) and self._stage.set_speed(self._speed_at(n)):
+        tol, vmin = cfg.speed_tolerance, cfg.min_design_speed_mps
+        v_kf = v_band = None
+        if isinstance(self._stage, KalmanInverse):
+            v = max(abs(self._speed_at(n)), vmin)
+            current = self._stage.design.speed
+            v_kf = v if abs(v - current) > tol * current else None
+        if self._fir is not None:
+            v = max(abs(self._speed_at(max(n - self.delay_samples, 0))), vmin)
+            current = self._design_speed
+            v_band = v if abs(v - current) > tol * current else None
+        return v_kf, v_band
+
+    def _redesign_due(self, n: int) -> bool:
+        """True when a filter changes at switch boundary n."""
+        return self._targets(n) != (None, None)
+
+    def _redesign(self, n: int) -> None:
+        """Apply the designs due at switch boundary n."""
+        v_kf, v_band = self._targets(n)
+        if v_kf is not None:
+            self._stage.set_speed(v_kf)
             self._counters['redesign'] += 1
-        if self._fir is None:
-            return
-        v = max(abs(self._speed_at(max(n - self.delay_samples, 0))), cfg.min_design_speed_mps)
-        if abs(v - self._design_speed) > cfg.speed_tolerance * self._design_speed:
-            self._fir.set_taps(fir_taps(self._response(v), self.delay_samples))
-            self._design_speed = v
+        if v_band is not None:
+            self._fir.set_taps(fir_taps(self._response(v_band), self.delay_samples))
+            self._design_speed = v_band
             self._counters['redesign'] += 1
 
     def _band(self, x: np.ndarray) -> Output:
