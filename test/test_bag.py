@@ -363,3 +363,16 @@ def test_example_bag_matches_its_command(tmp_path: Path) -> None:
     truth_new = read_stamped(tmp_path / 'again', TRUTH_TOPIC, 'geometry_msgs/msg/PointStamped')
     np.testing.assert_array_equal(truth_old.values, truth_new.values)
     assert np.ptp(truth_old.values[:, 2]) > 4e-3  # the 4 mm dip is in it
+
+
+def test_directory_of_split_files_without_metadata(tmp_path: Path) -> None:
+    first, second = make_run(300, seed=1), make_run(300, seed=2)
+    second.stamps_ns = second.stamps_ns + 300_000_000
+    split = tmp_path / 'split'
+    split.mkdir()
+    for k, run in enumerate((first, second)):
+        bag = write_run(tmp_path / f'part{k}', run)
+        shutil.copy(next(bag.glob('*.mcap')), split / f'split_{k}.mcap')
+    stream = read_imu(split)
+    np.testing.assert_array_equal(stream.stamps_ns, np.r_[first.stamps_ns, second.stamps_ns])
+    np.testing.assert_array_equal(stream.accel, np.r_[first.accel, second.accel])
