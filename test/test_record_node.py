@@ -200,3 +200,28 @@ def test_sigint_during_start_up_leaves_a_readable_bag(tmp_path: Path, ros_domain
     assert proc.returncode == 0 and 'Traceback' not in err
     with AnyReader([bag], default_typestore=typestore()) as reader:
         assert reader.message_count == 0
+
+
+def test_duration_ends_the_recording(tmp_path: Path, ros_context: Any, wait_for: Any) -> None:
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    bag = tmp_path / 'timed'
+    node = Node('ticker', context=ros_context)
+    pub = node.create_publisher(String, '/tick', 10)
+    proc = start_cli(['record', '--out', str(bag), '--topics', '/tick', '--duration', '4'])
+    try:
+        started = time.monotonic()
+        assert wait_for(lambda: pub.get_subscription_count() > 0 or proc.poll() is not None, 30)
+        while proc.poll() is None and time.monotonic() - started < 30:
+            pub.publish(String(data='tick'))
+            time.sleep(0.05)
+        assert proc.wait(5) == 0
+    finally:
+        node.destroy_node()
+        if proc.poll() is None:
+            proc.kill()
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        assert reader.message_count > 0
+        assert {reader.deserialize(raw, 'std_msgs/msg/String').data
+                for _, _, raw in reader.messages()} == {'tick'}
