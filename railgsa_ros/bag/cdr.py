@@ -119,38 +119,53 @@ def _decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
         raise ValueError('truncated message')
     key = np.stack([little.astype(np.int64), offset, *str_len], axis=1)
     groups, inverse = _unique_rows(key)
-    stamps = np.empty(n, dtype=np.int64)
-    values = np.empty((n, layout.n_doubles))
-    strings = [np.empty(n, dtype=object) for _ in range(layout.n_strings)]
+    pieces = []
     for g, (is_le, body, *lengths) in enumerate(groups):
-        rows = np.flatnonzero(inverse == g)
+        rows = np.flatnonzero(inverse == g) if len(groups) > 1 else slice(None)
         sub = block[rows]
         end = '<' if is_le else '>'
         sec = sub[:, 4:8].copy().view(end + 'i4')[:, 0].astype(np.int64)
         nsec = sub[:, 8:12].copy().view(end + 'u4')[:, 0].astype(np.int64)
-        stamps[rows] = sec * _NS + nsec
         start = 4 + body
-        values[rows] = sub[:, start:start + 8 * layout.n_doubles].copy().view(end + 'f8')
+        values = sub[:, start:start + 8 * layout.n_doubles].copy().view(end + 'f8')
+        strings = []
         for j, count in enumerate(lengths):
-            pos = int(str_pos[j][rows[0]])
+            pos = int(str_pos[j][0] if len(groups) == 1 else str_pos[j][rows[0]])
             uniq, inv = _unique_rows(sub[:, pos:pos + count - 1])
-            text = np.array([bytes(u).decode('utf-8', 'replace') for u in uniq], dtype=object)
-            strings[j][rows] = text[inv]
-    return Decoded(stamps, tuple(s.astype(str) for s in strings), values)
+            strings.append(np.array([bytes(u).decode('utf-8', 'replace') for u in uniq])[inv])
+        pieces.append((rows, Decoded(sec * _NS + nsec, tuple(strings), values)))
+    return _combine(pieces, n, layout)
+
+
+def _combine(pieces: list[tuple[np.ndarray | slice, Decoded]], n: int,
+             layout: StampedLayout) -> Decoded:
+    """Scatter decoded parts (row indices, part) into one Decoded of n rows."""
+    if len(pieces) == 1 and isinstance(pieces[0][0], slice):
+        return pieces[0][1]
+    stamps = np.empty(n, dtype=np.int64)
+    values = np.empty((n, layout.n_doubles))
+    strings = [np.empty(n, dtype=np.result_type(*(p.strings[j] for _, p in pieces)))
+               for j in range(layout.n_strings)]
+    for rows, part in pieces:
+        stamps[rows] = part.stamps_ns
+        values[rows] = part.values
+        for j, text in enumerate(part.strings):
+            strings[j][rows] = text
+    return Decoded(stamps, tuple(strings), values)
 
 
 def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded:
     """Decode N serialised messages of ``layout``; ValueError if any is not plain CDR."""
-    lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
-    stamps = np.empty(len(raws), dtype=np.int64)
-    values = np.empty((len(raws), layout.n_doubles))
-    strings = [np.empty(len(raws), dtype=object) for _ in range(layout.n_strings)]
+    if not raws:
+        empty = tuple(np.zeros(0, dtype=str) for _ in range(layout.n_strings))
+        return Decoded(np.zeros(0, dtype=np.int64), empty, np.zeros((0, layout.n_doubles)))
+    lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
+    if np.all(lengths == lengths[0]):
+        block = np.frombuffer(b''.join(raws), np.uint8)
+        return _decode_block(layout, block.reshape(len(raws), int(lengths[0])))
+    pieces = []
     for length in np.unique(lengths):
         rows = np.flatnonzero(lengths == length)
-        block = np.frombuffer(b''.join(raws[i] for i in rows), np.uint8)
-        part = _decode_block(layout, block.reshape(rows.size, int(length)))
-        stamps[rows] = part.stamps_ns
-        values[rows] = part.values
-        for j, s in enumerate(part.strings):
-            strings[j][rows] = s
-    return Decoded(stamps, tuple(s.astype(str) for s in strings), values)
+        block = np.frombuffer(b''.join([raws[i] for i in rows]), np.uint8)
+        pieces.append((rows, _decode_block(layout, block.reshape(rows.size, int(length)))))
+    return _combine(pieces, len(raws), layout)
