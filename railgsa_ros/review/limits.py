@@ -47,7 +47,7 @@ def class_label(index: int) -> str:
 
 def speed_class(speed_mps: np.ndarray) -> np.ndarray:
     """Speed class index per speed (m/s, sign ignored): 0..4, -1 above 300 km/h or not finite."""
-    kmh = np.abs(np.asarray(speed_mps, dtype=float)) * 3.6
+    kmh = np.round(np.abs(np.asarray(speed_mps, dtype=float)) * 3.6, 6)  # 120 / 3.6 * 3.6 > 120
     idx = np.searchsorted(CLASS_UPPER_KMH, kmh, side='left')
     return np.where((idx < CLASS_UPPER_KMH.size) & np.isfinite(kmh), idx, -1)
 

@@ -88,7 +88,9 @@ def _summary(review: Review) -> str:
     sd = review.sections.sd_m
     cards = [
         _card('run', f'{length / 1e3:.2f} km in {review.duration_s:.1f} s'),
-        _card('speed', f'{np.min(v):.0f}-{np.max(v):.0f} km/h (mean {np.mean(v):.0f})'),
+        _card('speed', (f'{np.min(v):.0f}' if np.ptp(v) < 0.5 else
+                        f'{np.min(v):.0f}-{np.max(v):.0f} (mean {np.mean(v):.0f})')
+              + f' km/h; class {_speed_classes(run.speed_mps)}'),
         _card('worst defect', worst),
         _card('exceedances (central)', exc),
         _card(f'SD per {review.sections.length_m:g} m',
@@ -202,9 +204,10 @@ def _uncertainty_section(review: Review, names: dict[str, str]) -> str:
                 for j, name in enumerate(w.names)]
         parts.append(f'''{_figure(names, 'histogram', 'surrogate histogram at the worst location')}
 <p class=note>Worst location {w.chainage_m:.1f} m (largest |PCE mean|): mean
-{float(res.mean):+.3f} mm, std {float(res.std):.3f} mm, {100 * cfg.lower_quantile:g}-
-{100 * cfg.upper_quantile:g} % [{q[0]:+.3f}, {q[1]:+.3f}] mm from {len(res.samples):,} surrogate
-samples.</p>{_table(['parameter', 'Sobol first', 'Sobol total'], rows)}''')
+{float(res.mean):+.3f} mm, std {float(res.std):.3f} mm,
+{100 * cfg.lower_quantile:g}-{100 * cfg.upper_quantile:g} % interval
+[{q[0]:+.3f}, {q[1]:+.3f}] mm, from {len(res.samples):,} surrogate samples.</p>
+{_table(['parameter', 'Sobol first', 'Sobol total'], rows)}''')
     return '\n'.join(parts)
 
 

@@ -3,7 +3,8 @@
 The signal is resampled to distance (cells of ``dx`` m, EN 13848 samples at <= 0.5 m); a cell
 counts when the samples around it lie less than ``max_step_m`` apart, so a gap in the data is
 not bridged. Section k covers [k L, (k + 1) L) of chainage; its SD is taken over the valid cells
-(mean removed) when they cover at least ``min_coverage`` of it, else NaN.
+(mean removed) when they cover at least ``min_coverage`` of it, else NaN. Such short sections at
+either end of the run are left out.
 """
 
 from __future__ import annotations
@@ -66,5 +67,9 @@ def section_sd(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray | 
         else:
             k = np.clip(np.floor(c / length_m).astype(np.int64) - first, 0, n_sec - 1)
             speed = np.bincount(k, np.abs(speed_mps), n_sec) / np.bincount(k, minlength=n_sec)
-    sd[coverage < min_coverage] = np.nan
-    return Sections(length_m, (first + np.arange(n_sec)) * length_m, sd, coverage, speed)
+    short = coverage < min_coverage
+    sd[short] = np.nan
+    kept = np.flatnonzero(~short)
+    keep = slice(kept[0], kept[-1] + 1) if kept.size else slice(0, 0)
+    return Sections(length_m, (first + np.arange(n_sec))[keep] * length_m, sd[keep],
+                    coverage[keep], speed[keep])

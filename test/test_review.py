@@ -1,0 +1,172 @@
+"""Review building blocks against hand-computed truth: EN 13848-5 table and speed classes,
+exceedances of known dips, SD per section of known signals, stamp health, progress bar."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.review.exceedances import count_by_level, find_exceedances, magnitudes
+from railgsa_ros.review.health import stamp_stats
+from railgsa_ros.review.limits import en13848_limits, speed_class
+from railgsa_ros.review.progress import Progress
+from railgsa_ros.review.sections import section_sd
+from railgsa_ros.track import cosine_dip
+
+KMH = 1 / 3.6
+MM = 1e-3
+
+
+def test_speed_classes_include_their_upper_bound() -> None:
+    kmh = np.array([0, 80, 80.01, 120, 121, 160, 200, 230, 231, 300, 300.5, np.nan])
+    assert speed_class(kmh * KMH).tolist() == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, -1, -1]
+    assert speed_class(np.array([-100 * KMH])).tolist() == [1]  # reversing: same class
+
+
+@pytest.mark.parametrize(('end', 'expected_mm'), [('lower', (8, 10, 26)), ('upper', (12, 17, 26))])
+def test_d1_limits_at_100_kmh_take_the_chosen_end_of_the_ranges(end: str,
+                                                                expected_mm: tuple) -> None:
+    lim = en13848_limits('d1', end)
+    assert lim.at(np.array([100 * KMH])) == pytest.approx(np.array([expected_mm]) * MM)
+    assert lim.sd_at(np.array([100 * KMH])) == pytest.approx(np.array([[1.8, 2.7]]) * MM)
+    assert np.all(np.isnan(lim.at(np.array([320 * KMH]))))
+    # every class: AL < IL < IAL, and the limits tighten with speed
+    table = lim.isolated_m
+    assert np.all(np.diff(table, axis=1) > 0) and np.all(np.diff(table, axis=0) < 0)
+
+
+def test_d2_has_only_an_immediate_action_limit_above_160_kmh() -> None:
+    lim = en13848_limits('d2')
+    thresholds = lim.at(np.array([100, 200, 250]) * KMH)
+    assert np.all(np.isnan(thresholds[:, :2]))
+    assert np.isnan(thresholds[0, 2]) and thresholds[1:, 2] == pytest.approx([33 * MM, 28 * MM])
+    with pytest.raises(ConfigError, match='limit end'):
+        en13848_limits('d1', 'middle')
+    with pytest.raises(ConfigError, match='band'):
+        en13848_limits('d3')
+
+
+def _track(dips: list[tuple[float, float]], speed_kmh: float | np.ndarray
+           ) -> tuple[np.ndarray, ...]:
+    """Chainage every 5 cm over 1 km, u with 4 m cosine dips (start m, depth m), speed, stamps."""
+    x = np.arange(0.0, 1000.0, 0.05)
+    u = sum((cosine_dip(x, start, 4.0, depth) for start, depth in dips), np.zeros_like(x))
+    return x, u, np.broadcast_to(speed_kmh * KMH, x.shape), np.arange(x.size, dtype=np.int64)
+
+
+def test_dips_are_found_at_their_chainage_with_their_level() -> None:
+    # 100 km/h, lower end: AL 8, IL 10, IAL 26 mm
+    x, u, v, t = _track([(100, 9 * MM), (300, 12 * MM), (500, 30 * MM), (700, 7 * MM)], 100)
+    found = find_exceedances(x, u, v, t, en13848_limits())
+    assert [(e.level, e.confidence) for e in found] == [('AL', 'certain'), ('IL', 'certain'),
+                                                        ('IAL', 'certain')]
+    assert [e.peak_m for e in found] == pytest.approx([102, 302, 502], abs=0.05)
+    assert [e.peak_u_m for e in found] == pytest.approx([-9 * MM, -12 * MM, -30 * MM], abs=1e-6)
+    assert [e.limit_m for e in found] == pytest.approx([8 * MM, 10 * MM, 26 * MM])
+    # the stretch beyond the limit is symmetric about the dip's centre and shorter than the dip
+    for e in found:
+        assert e.start_m < e.peak_m < e.end_m and e.end_m - e.start_m < 4.0
+        assert e.peak_m - e.start_m == pytest.approx(e.end_m - e.peak_m, abs=0.06)
+    counts = count_by_level(found)
+    assert {k: sum(c.values()) for k, c in counts.items()} == {'AL': 1, 'IL': 1, 'IAL': 1}
+
+
+def test_the_speed_class_sets_the_limit() -> None:
+    speed = np.where(np.arange(20000) < 10000, 100.0, 150.0)  # 0-500 m: 100, then 150 km/h
+    x, u, v, t = _track([(100, 7 * MM), (700, 7 * MM)], speed)
+    found = find_exceedances(x, u, v, t, en13848_limits())  # AL 8 mm, then 6 mm
+    assert len(found) == 1 and found[0].peak_m == pytest.approx(702, abs=0.05)
+    assert found[0].speed_kmh == pytest.approx(150)
+
+
+def test_the_band_sets_the_confidence() -> None:
+    x, u, v, t = _track([(100, 12 * MM), (300, 15 * MM), (500, 7 * MM), (700, 11 * MM)], 100)
+    half = np.where(x < 600, 2 * MM, 0.5 * MM) * (u != 0)
+    found = find_exceedances(x, u, v, t, en13848_limits(), u - half, u + half)
+    got = [(round(e.peak_m), e.level, e.confidence) for e in found]
+    # 12 +- 2: central IL, nearest edge 10 is not above IL 10 -> likely; 15 +- 2: certain IL;
+    # 7 +- 2: only the far edge 9 passes AL -> possible; 11 +- 0.5: certain IL
+    assert got == [(102, 'IL', 'likely'), (302, 'IL', 'certain'), (502, 'AL', 'possible'),
+                   (702, 'IL', 'certain')]
+    assert found[2].peak_u_m == pytest.approx(-7 * MM, abs=1e-6)
+    assert (found[0].lower_m, found[0].upper_m) == pytest.approx((-14 * MM, -10 * MM), abs=1e-6)
+
+
+def test_noise_at_the_limit_makes_one_exceedance_per_side() -> None:
+    x, u, v, t = _track([(100, 9 * MM)], 100)
+    rng = np.random.default_rng(0)
+    u = u + 0.3 * MM * rng.standard_normal(u.size) * (u != 0)  # dithers across AL = 8 mm
+    u[(x > 110) & (x < 112)] = 8.5 * MM  # a positive bump next to it: another exceedance
+    found = find_exceedances(x, u, v, t, en13848_limits(), merge_m=1.0)
+    assert [np.sign(e.peak_u_m) for e in found] == [-1, 1]
+    assert found[0].peak_m == pytest.approx(102, abs=0.3)
+    assert 110 < found[1].peak_m < 112 and 110 < found[1].start_m < found[1].end_m < 112
+
+
+def test_magnitudes_of_a_band_across_zero() -> None:
+    near, far = magnitudes(np.array([1.0, -2.0, 3.0]), np.array([-1.0, -3.0, 2.0]),
+                           np.array([2.0, -1.0, 5.0]))
+    assert near.tolist() == [0.0, 1.0, 2.0] and far.tolist() == [2.0, 3.0, 5.0]
+
+
+def test_section_sd_of_sines_with_a_gap() -> None:
+    x = np.arange(0.0, 1000.0, 0.02)
+    amp = np.where(x < 400, 1 * MM, 2 * MM)
+    u = amp * np.sin(2 * np.pi * x / 10.0)  # 20 whole periods per 200 m section
+    keep = ~((x > 450) & (x < 580))  # 130 m missing in section 2: 35 % covered
+    speed = np.where(x < 500, 20.0, 30.0)
+    s = section_sd(x[keep], u[keep], speed[keep])
+    assert s.start_m.tolist() == [0, 200, 400, 600, 800]
+    expected = np.array([1, 1, np.nan, 2, 2]) * MM / np.sqrt(2)
+    assert s.sd_m == pytest.approx(expected, rel=1e-3, nan_ok=True)
+    assert s.coverage == pytest.approx([1, 1, 0.35, 1, 1], abs=0.01)
+    assert s.speed_mps[[0, 1, 3, 4]] == pytest.approx([20, 20, 30, 30])
+
+
+def test_section_sd_leaves_out_short_sections_at_the_ends() -> None:
+    x = np.arange(150.0, 1010.0, 0.05)  # 50 m of section 0 and 10 m of section 5: left out
+    s = section_sd(x, np.sin(x))
+    assert s.start_m.tolist() == [200, 400, 600, 800]
+    assert section_sd(x[:1], x[:1]).start_m.size == 0
+
+
+def test_stamp_stats_count_jitter_gaps_and_backward_steps() -> None:
+    rng = np.random.default_rng(1)
+    period = 1_000_000  # 1 kHz
+    t = np.arange(20_000) * period + np.round(rng.normal(0, 20_000, 20_000)).astype(np.int64)
+    t = np.delete(t, np.s_[5000:5099])  # a 100 ms gap
+    s = stamp_stats(t)
+    assert s.count == t.size and s.rate_hz == pytest.approx(1000, rel=1e-3)
+    assert s.gaps == 1 and s.longest_gap_s == pytest.approx(0.1, abs=1e-4)
+    assert s.lost_s == pytest.approx(0.099, abs=1e-4)
+    assert s.backwards == 0
+    # the steps carry the difference of two stamp errors: std sqrt(2) x 20 us
+    assert s.jitter_std_s == pytest.approx(np.sqrt(2) * 20e-6, rel=0.05)
+    t[8000], t[8001] = t[8001], t[8000]  # one sample out of order
+    assert stamp_stats(t).backwards == 1
+    one = stamp_stats(t[:1])
+    assert one.count == 1 and np.isnan(one.rate_hz)
+
+
+def test_progress_draws_only_when_forced_or_on_a_terminal() -> None:
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    quiet = io.StringIO()
+    bar = Progress(10, 'x', quiet)
+    bar.update(10)
+    bar.close()
+    assert quiet.getvalue() == ''
+    for stream, enabled in ((io.StringIO(), True), (Tty(), None)):
+        bar = Progress(10, 'stage', stream, enabled)
+        bar.update(3)
+        bar.update(4)  # throttled: within 0.1 s of the last draw
+        bar.update(10, 'done')
+        bar.close()
+        text = stream.getvalue()
+        assert text.count('\r') == 2 and text.endswith('100 %\n') and ' 30 %' in text
+        assert '\rdone [' + '#' * 30 + ']' in text
