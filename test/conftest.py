@@ -54,9 +54,10 @@ def _reserve_domain() -> tuple[int, socket.socket | None]:
     return 1 + os.getpid() % 100, None
 
 
-@pytest.fixture(scope='session')
+@pytest.fixture(scope='session', autouse=True)
 def ros_domain() -> Iterator[int]:
-    """This session's ROS_DOMAIN_ID (exported, so node subprocesses inherit it), localhost only."""
+    """This session's ROS_DOMAIN_ID, localhost only: exported for the whole session (autouse),
+    so every subprocess a test starts inherits it."""
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.pop('ROS_LOCALHOST_ONLY', None)
     domain, sock = _reserve_domain()
