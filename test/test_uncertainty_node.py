@@ -1,0 +1,285 @@
+"""uncertainty_node: band and sensitivity messages equal the offline streaming code, bad input
+counted on /diagnostics, start-up errors; as a process next to irregularity_node: SIGKILL of the
+uncertainty node leaves irregularity_node unaffected, SIGINT exits 0."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+import signal
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+
+#: a short band delay keeps the tests fast; 1 s windows; no odometry
+PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0,
+          'window_length': 1.0, 'n_mc': 4096, 'process_period_s': 0.02}
+DEPTH = 5000  # listener history: a whole run, so that no burst of outputs overwrites another
+T0_NS = 1_000_000_000  # header stamps must be positive
+NS = 1_000_000_000
+
+
+@pytest.fixture(scope='module')
+def run() -> Any:
+    """4 s of German-low track at 40 m/s through an ideal 1 kHz IMU."""
+    from railgsa_ros.scenario import run_scenario
+
+    return run_scenario('german-low', speed_mps=40.0, duration_s=4.0, rate_hz=1000.0,
+                        sensor='ideal', seed=2)
+
+
+def imu_messages(stamps_ns: np.ndarray, accel_z: np.ndarray) -> list:
+    """sensor_msgs/Imu in imu_link, gravity included, covariance marked absent."""
+    from sensor_msgs.msg import Imu
+
+    msgs = []
+    for stamp, a in zip(stamps_ns.tolist(), accel_z.tolist(), strict=True):
+        m = Imu()
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, NS)
+        m.header.frame_id = 'imu_link'
+        m.linear_acceleration.z = a
+        m.linear_acceleration_covariance[0] = -1.0
+        msgs.append(m)
+    return msgs
+
+
+def node_config() -> Any:
+    """The node's UncertaintyConfig for PARAMS (what offline_bands must be given)."""
+    from railgsa_ros.uncertainty import UncertaintyConfig
+
+    return UncertaintyConfig.from_mapping({k: v for k, v in PARAMS.items()
+                                           if k not in ('use_odom', 'process_period_s')})
+
+
+class Listener:
+    """A test node: publishes imu/data, records bands, sensitivities, irregularity and
+    /diagnostics of ``node_name``."""
+
+    def __init__(self, ros_context: Any, node_name: str) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PointStamped, Vector3Stamped
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from sensor_msgs.msg import Imu
+
+        from railgsa_ros.nodes.qos import output_qos, sensor_qos
+
+        self.node = Node('uncertainty_test', context=ros_context)
+        self.lock = threading.Lock()
+        self.band: list[tuple[int, float, float, float]] = []
+        self.irregularity: list[int] = []
+        self.sensitivity: list[Any] = []
+        self.diag: list[dict] = []
+        self._name = node_name
+        sub = self.node.create_subscription
+        sub(Vector3Stamped, 'track/irregularity_band', self._on_band, output_qos(DEPTH))
+        sub(PointStamped, 'track/irregularity', self._on_irregularity, output_qos(DEPTH))
+        sub(DiagnosticArray, 'track/sensitivity', self._on_sensitivity, output_qos(100))
+        sub(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.imu = self.node.create_publisher(Imu, 'imu/data', sensor_qos())
+        # its own executor thread: the node under test never delays the reading of its outputs
+        self.executor = SingleThreadedExecutor(context=ros_context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=2.0)
+        self.thread.join(5.0)
+        self.node.destroy_node()
+
+    @staticmethod
+    def _ns(header: Any) -> int:
+        return header.stamp.sec * NS + header.stamp.nanosec
+
+    def _on_band(self, msg: Any) -> None:
+        with self.lock:
+            self.band.append((self._ns(msg.header), msg.vector.x, msg.vector.y, msg.vector.z))
+
+    def _on_irregularity(self, msg: Any) -> None:
+        with self.lock:
+            self.irregularity.append(self._ns(msg.header))
+
+    def _on_sensitivity(self, msg: Any) -> None:
+        with self.lock:
+            self.sensitivity.append(msg)
+
+    def _on_diag(self, msg: Any) -> None:
+        prefix = f'{self._name}: '
+        statuses = {s.name[len(prefix):]: (s.level, {kv.key: kv.value for kv in s.values})
+                    for s in msg.status if s.name.startswith(prefix)}
+        if statuses:
+            with self.lock:
+                self.diag.append(statuses)
+
+    def publish(self, msgs: list, rate_hz: float = 2000.0) -> None:
+        """Publish in 10 ms bursts at about ``rate_hz``."""
+        burst = max(1, int(rate_hz / 100))
+        for i in range(0, len(msgs), burst):
+            for m in msgs[i:i + burst]:
+                self.imu.publish(m)
+            time.sleep(0.01)
+
+
+@pytest.fixture
+def listen(ros_context: Any) -> Iterator[Callable[[], Listener]]:
+    """``listen()`` -> a Listener of uncertainty_node's /diagnostics, closed at teardown."""
+    made: list[Listener] = []
+
+    def make() -> Listener:
+        made.append(Listener(ros_context, 'uncertainty_node'))
+        return made[-1]
+    yield make
+    for listener in made:
+        listener.close()
+
+
+@pytest.fixture
+def rig(ros_context: Any, spin: Callable, wait_for: Callable,
+        listen: Callable[[], Listener]) -> Callable[..., tuple]:
+    """``rig(**params)`` -> (UncertaintyNode in-process, Listener), connected."""
+    from rclpy.parameter import Parameter
+
+    from railgsa_ros.nodes.uncertainty_node import UncertaintyNode
+
+    def make(**params: Any) -> tuple:
+        params = {**PARAMS, 'output_qos_depth': DEPTH, **params}
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
+        node = spin(UncertaintyNode(context=ros_context, parameter_overrides=overrides))
+        listener = listen()
+        assert wait_for(lambda: listener.imu.get_subscription_count() > 0, 15.0)
+        assert wait_for(lambda: node.count_subscribers('track/irregularity_band') > 0, 15.0)
+        time.sleep(0.2)
+        return node, listener
+    return make
+
+
+def _values(status: Any) -> dict[str, str]:
+    return {kv.key: kv.value for kv in status.values}
+
+
+def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Callable,
+                                                               wait_for: Callable) -> None:
+    from railgsa_ros.uncertainty import UncertaintyStream, offline_bands
+
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    msgs = imu_messages(stamps, acc)
+    msgs[500].linear_acceleration.z = float('nan')  # rejected: nan
+    msgs[900].header.frame_id = ''                  # malformed
+    good = np.setdiff1d(np.arange(stamps.size), [500, 900])
+    ref = offline_bands(stamps[good], acc[good], 40.0, config=node_config())
+    stream = UncertaintyStream(node_config())
+    live = stream.push(stamps[good], acc[good], 40.0)  # what the node can emit without a flush
+    node, listener = rig()
+    listener.publish(msgs)
+    count = len(live.band)
+    assert 0 < count < good.size
+    assert wait_for(lambda: len(listener.band) >= count, 30.0), (len(listener.band), count,
+                                                                 node.counters())
+    assert wait_for(lambda: len(listener.sensitivity) >= len(live.windows), 10.0)
+    time.sleep(0.2)
+    with listener.lock:
+        got = np.array(listener.band)
+        arrays = list(listener.sensitivity)
+    np.testing.assert_array_equal(got[:, 0].astype(np.int64), ref.stamps_ns[:count])
+    scale = np.abs(ref.mean_m).max()
+    for col, name in enumerate(('lower_m', 'mean_m', 'upper_m'), start=1):
+        np.testing.assert_allclose(got[:, col], getattr(ref, name)[:count], rtol=0,
+                                   atol=1e-12 * scale)
+    assert len(arrays) == len(live.windows) >= 2  # two QoIs per 1 s window
+    for msg, rec in zip(arrays, live.windows, strict=True):
+        *params, summary = msg.status
+        assert [s.name for s in params] == ['k_s', 'k_us', 'c'] and summary.name == 'summary'
+        for i, status in enumerate(params):
+            v = _values(status)
+            np.testing.assert_allclose([float(v['sobol_first']), float(v['sobol_total'])],
+                                       [rec.sobol_first[i], rec.sobol_total[i]], rtol=1e-5,
+                                       atol=1e-6)
+            # delta bins surrogate samples: coefficients 1e-16 apart (other chunking) may move
+            # a sample across a bin edge
+            assert float(v['delta']) == pytest.approx(rec.delta[i], abs=1e-3)
+        s = _values(summary)
+        assert s['qoi'] == rec.qoi and s['rule'] == 'pem5' and s['model_evaluations'] == '19'
+        assert int(s['first_stamp_ns']) == rec.first_stamp_ns
+        assert int(s['last_stamp_ns']) == rec.last_stamp_ns == listener._ns(msg.header)
+        assert float(s['chainage_end_m']) == pytest.approx(rec.chainage_end_m, rel=1e-5)
+    diag: list[dict] = []
+
+    def counted() -> bool:
+        with listener.lock:
+            diag[:] = [d for d in listener.diag if d.get('imu input', (0, {}))[1].get(
+                'rejected') == '2' and d['uncertainty'][1].get('windows', '0') != '0'][:1]
+        return bool(diag)
+    assert wait_for(counted, 10.0), listener.diag[-1:]
+    values = diag[0]['imu input'][1]
+    assert any(d['imu input'][0] == b'\x01' for d in listener.diag)  # WARN in that period
+    assert values['rejected_nan'] == values['rejected_malformed'] == '1'
+    unc = diag[0]['uncertainty'][1]
+    assert unc['rule_points'] == '19' and float(unc['window_compute_ms']) > 0
+    assert 0 < float(unc['cpu_fraction_of_one_core']) < 2
+
+
+def test_invalid_start_parameters_raise_config_error(ros_context: Any, tmp_path: Any) -> None:
+    from rclpy.parameter import Parameter
+
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.nodes.uncertainty_node import UncertaintyNode
+
+    bad_file = tmp_path / 'u.yaml'
+    bad_file.write_text('parameters:\n  k_s: {dist: normal, mu: 1.0}\n')
+    for name, value, match in (('order', 3, 'order'), ('qoi', 'max', 'qoi'),
+                               ('uncertainty_file', str(bad_file), 'sigma')):
+        with pytest.raises(ConfigError, match=match):
+            UncertaintyNode(context=ros_context,
+                            parameter_overrides=[Parameter(name, value=value)])
+
+
+def test_parameters_are_read_only(rig: Callable) -> None:
+    from rclpy.parameter import Parameter
+
+    node, _ = rig()
+    result = node.set_parameters([Parameter('germ_samples', value=2048)])[0]
+    assert not result.successful and 'read-only' in result.reason
+
+
+def test_killing_the_uncertainty_node_leaves_irregularity_node_unaffected(
+        run: Any, listen: Callable, wait_for: Callable, start_node: Callable) -> None:
+    def ros_args(names: Any) -> list[str]:
+        return [a for k in names for a in ('-p', f'{k}:={str(PARAMS[k]).lower()}')]
+
+    shared = ('use_odom', 'speed_mps', 'min_design_speed_mps')
+    irregularity = start_node('railgsa_ros.nodes.irregularity_node', ros_args(shared))
+    uncertainty = start_node('railgsa_ros.nodes.uncertainty_node', ros_args(PARAMS))
+    listener = listen()
+    assert wait_for(lambda: listener.imu.get_subscription_count() >= 2, 30.0), \
+        (irregularity.running(), uncertainty.running())
+    time.sleep(0.5)
+    stamps = run.stamps_ns + T0_NS
+    msgs = imu_messages(stamps, run.accel[:, 2])
+    half = 2600  # past the band delay of both nodes (about 1.8 s)
+    listener.publish(msgs[:half], rate_hz=1000.0)
+    assert wait_for(lambda: len(listener.band) > 0, 15.0), uncertainty.stop().stderr
+    uncertainty.stop(signal.SIGKILL)
+    before = len(listener.irregularity)
+    listener.publish(msgs[half:], rate_hz=1000.0)
+    assert wait_for(lambda: len(listener.irregularity) >= before + len(msgs) - half, 20.0)
+    time.sleep(0.2)
+    with listener.lock:
+        got = np.array(listener.irregularity, np.int64)
+    # every sample the irregularity node could emit arrived, in order, none missing
+    np.testing.assert_array_equal(got, stamps[:got.size])
+    assert got.size >= stamps.size - 2000 and irregularity.running()
+    result = irregularity.stop(signal.SIGINT)
+    assert result.rc == 0, result.stderr
+
+
+def test_sigint_exits_zero(listen: Callable, wait_for: Callable, start_node: Callable) -> None:
+    node = start_node('railgsa_ros.nodes.uncertainty_node', ['-p', 'use_odom:=false'])
+    listener = listen()
+    assert wait_for(lambda: len(listener.diag) > 0, 30.0), node.stop().stderr
+    result = node.stop(signal.SIGINT)
+    assert result.rc == 0, result.stderr
