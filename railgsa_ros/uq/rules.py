@@ -6,7 +6,8 @@ polynomials against the standard normal density exactly up to their degree (``EX
 
 PEM (paper Eq. 19-21): nodes at 0 and +-sqrt(3) on at most one (PEM3) or two (PEM5) axes.
 PEM5's axial weight w1 = (4 - n) / 18 vanishes at n = 4 and is negative for n >= 5; nodes of
-weight exactly 0 are dropped, so they cost no model run (PEM5 has 2n^2 + 1 nodes, 25 at n = 4).
+weight exactly 0 are dropped, so they cost no model run (PEM5 has 2n^2 + 1 nodes, 25 at n = 4;
+PEM3's centre weight 1 - n/3 vanishes at n = 3, leaving 6 nodes).
 """
 
 from __future__ import annotations
