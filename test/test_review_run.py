@@ -1,0 +1,226 @@
+"""``railgsa review`` on simulated bags with known defects: exceedances at the right chainage and
+level, SD per 200 m against the truth's, scores, the same band as the uncertainty core, the
+injected faults in the input health, and bad input (exit 2, nothing written)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+import re
+
+import numpy as np
+import pytest
+
+from railgsa_ros.bag import read_imu, write_run
+from railgsa_ros.cli.main import main
+from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.review.build import ReviewOptions, build_review, write_review
+from railgsa_ros.review.stream import held_speed
+from railgsa_ros.scenario import run_scenario
+from railgsa_ros.track import save_csv
+from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
+from railgsa_ros.uq.uncertainty_file import table3
+
+MM = 1e-3
+SPEED = 20.0  # m/s = 72 km/h: class v <= 80 km/h, lower end AL 12, IL 17, IAL 28 mm
+DEFECTS = 'dip@200:len=6:depth=0.02,dip@400:len=6:depth=0.03,dip@600:len=8:depth=0.05'
+LIMITS_MM = (12.0, 17.0, 28.0)  # EN 13848-5 [M] as tabulated in rail_domain.md, written out
+CHEAP = UncertaintyConfig(rule='pem3', order=1, germ_samples=256, n_mc=1000,
+                          window_length=10.0)
+
+
+@pytest.fixture(scope='module')
+def simulated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    """A 40 s, 800 m ADXL355 bag over German-low track with three dips of known level."""
+    run = run_scenario('german-low', SPEED, 40.0, 1000.0, 'adxl355', 1, defects=DEFECTS)
+    assert np.max(np.abs(run.accel[:, 2])) < 0.95 * 2 * 9.80665  # no clipping in the sensor
+    return write_run(tmp_path_factory.mktemp('review') / 'run', run), run
+
+
+@pytest.fixture(scope='module')
+def review(simulated: tuple[Path, object]):
+    bag, _ = simulated
+    return build_review(ReviewOptions(bag, CHEAP, dists=table3(), truth=bag))
+
+
+def truth_band(run: object) -> tuple[np.ndarray, np.ndarray]:
+    """The truth filtered to D1 on a 0.25 m grid of the simulation's chainage."""
+    x = np.arange(0.0, run.chainage_m[-1], 0.25)
+    return x, band_distance(np.interp(x, run.chainage_m, run.truth_u_m), 0.25)
+
+
+def test_every_truth_exceedance_is_found_at_its_chainage_and_level(simulated, review) -> None:
+    _, run = simulated
+    x, u = truth_band(run)
+    beyond = np.abs(u) > LIMITS_MM[0] * MM
+    centres = np.array([203.0, 403.0, 604.0])
+    assert np.all(np.min(np.abs(x[beyond][:, None] - centres), axis=1) < 8)  # only at the dips
+    central = [e for e in review.exceedances if e.confidence != 'possible']
+    for centre in centres:
+        near = np.abs(x - centre) < 8
+        k = np.argmax(np.abs(u[near]))
+        level = int(np.sum(np.abs(u[near][k]) > np.array(LIMITS_MM) * MM))
+        hits = [e for e in central if abs(e.peak_m - x[near][k]) < 1.0]
+        assert len(hits) == 1, (centre, hits)
+        assert hits[0].level == ('AL', 'IL', 'IAL')[level - 1]
+        assert hits[0].peak_u_m == pytest.approx(u[near][k], abs=1 * MM)
+    for e in central:  # no false alarm away from the dips
+        assert np.min(np.abs(e.peak_m - centres)) < 8
+
+
+def test_sd_per_200_m_matches_the_truth(simulated, review) -> None:
+    _, run = simulated
+    x, u = truth_band(run)
+    sections = review.sections
+    assert sections.start_m.tolist() == [0, 200, 400, 600]
+    truth_sd = np.array([np.std(u[(x >= s) & (x < s + 200)]) for s in sections.start_m])
+    assert np.all(sections.coverage > 0.95)
+    assert sections.sd_m == pytest.approx(truth_sd, abs=0.1 * MM)
+    assert review.truth_sections.sd_m == pytest.approx(truth_sd, abs=0.05 * MM)
+    assert sections.speed_mps == pytest.approx(np.full(4, SPEED), rel=1e-3)
+
+
+def test_scores_meet_the_simulation_targets(review) -> None:
+    score = review.comparison.score
+    assert score.rmse < 0.3 * MM and score.correlation > 0.9 and score.peak_error < 1 * MM
+    assert review.comparison.defect_m == pytest.approx(604.0, abs=1.0)
+
+
+def test_the_band_is_the_uncertainty_core_band(simulated, review) -> None:
+    bag, _ = simulated
+    stream = read_imu(bag)
+    cfg = review.config
+    band = offline_bands(stream.stamps_ns, stream.accel[:, 2],
+                         held_speed(stream.stamps_ns, stream.odom_stamps_ns, stream.speed_mps,
+                                    cfg.inversion.speed_mps),
+                         stream.frame_ids, cfg, dists=table3())
+    run = review.run
+    assert np.array_equal(band.stamps_ns, run.stamps_ns)
+    for name in ('lower_m', 'mean_m', 'upper_m'):
+        assert np.array_equal(getattr(band, name), getattr(run.band, name))
+    assert np.all(run.band.lower_m <= run.band.upper_m)
+    # windows of 10 s: four along 40 s, each QoI, every index in [0, 1]
+    assert [w.qoi for w in run.windows] == ['peak', 'rms'] * 4
+    assert all(np.all((w.sobol_first >= -1e-12) & (w.sobol_first <= w.sobol_total + 1e-12))
+               for w in run.windows)
+    worst = review.worst
+    assert worst.chainage_m == pytest.approx(604.0, abs=1.0)
+    assert float(worst.result.mean) == pytest.approx(
+        run.band.mean_m[np.argmin(np.abs(run.stamps_ns - worst.stamp_ns))] / MM, rel=1e-9)
+
+
+def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: Path) -> None:
+    report = write_review(review, tmp_path / 'out')
+    html = report.read_text(encoding='utf-8')
+    images = re.findall(r'<img src="([^"]+)"', html)
+    assert set(images) == {'overview.png', 'closeups.png', 'sections.png', 'health.png',
+                           'sensitivity.png', 'histogram.png', 'truth.png'}
+    for name in images:
+        assert (report.parent / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert sorted(p.name for p in report.parent.iterdir()) == sorted([*images, 'report.html'])
+    counts = {level: sum(e.level == level for e in review.exceedances)
+              for level in ('IAL', 'IL', 'AL')}
+    assert ', '.join(f'<span class={k}>{k} {v}</span>' for k, v in counts.items()) in html
+    assert '[M]' in html and 'lower</b> end' in html
+    assert not list(tmp_path.glob('.out*'))  # no temporary left behind
+
+
+def test_injected_faults_appear_in_the_input_health(tmp_path: Path) -> None:
+    run = run_scenario('german-low', SPEED, 12.0, 1000.0, 'ideal', 2)
+    accel = run.accel.copy()
+    accel[[1000, 2000, 2001, 5000, 9000], 2] = np.nan
+    stamps = run.stamps_ns.copy()
+    stamps[7001] = stamps[7000]  # a repeated stamp (bags keep log-time order: no swap)
+    drop = np.r_[3000:3300]  # 300 ms without samples
+    keep = np.setdiff1d(np.arange(stamps.size), drop)
+    faulty = replace(run, stamps_ns=stamps[keep], accel=accel[keep], t_true_s=run.t_true_s[keep],
+                     speed_mps=run.speed_mps[keep], chainage_m=run.chainage_m[keep],
+                     truth_u_m=run.truth_u_m[keep])
+    bag = write_run(tmp_path / 'faulty', faulty)
+    review = build_review(ReviewOptions(bag))
+    counters, imu = review.health.counters, review.health.imu
+    assert review.health.rejected == {'nan': 5, 'wrong_frame': 0, 'saturated': 0,
+                                      'out_of_order': 0, 'duplicate': 1}
+    assert counters['gap'] == 1 and counters['reset'] == 1  # 0.3 s > max_bridge_s 0.2 s
+    assert imu.gaps == 1 and imu.longest_gap_s == pytest.approx(0.301, abs=1e-6)
+    assert imu.backwards == 1 and imu.count == 12000 - 300
+    assert review.run.band is None and review.worst is None
+
+
+def test_cli_writes_the_report_and_draws_progress_only_when_asked(simulated, tmp_path: Path,
+                                                                   capsys) -> None:
+    bag, run = simulated
+    truth = tmp_path / 'truth.csv'
+    save_csv(truth, run.chainage_m, run.truth_u_m)
+    out = tmp_path / 'report'
+    assert main(['review', str(bag), '--out', str(out), '--no-uncertainty', '--truth',
+                 str(truth), '--limit-end', 'upper']) == 0
+    stdout, stderr = capsys.readouterr()
+    assert str(out / 'report.html') in stdout and 'x real time' in stdout
+    assert stderr == ''
+    html = (out / 'report.html').read_text(encoding='utf-8')
+    assert 'upper</b> end' in html and 'histogram.png' not in html and 'truth.png' in html
+    assert main(['review', str(bag), '--out', str(out), '--no-uncertainty']) == 2
+    assert 'already exists' in capsys.readouterr().err
+    assert main(['review', str(bag), '--out', str(out), '--no-uncertainty', '--overwrite',
+                 '--progress']) == 0
+    assert '\rprocessing [' in capsys.readouterr().err
+
+
+def _corrupt(tmp_path: Path) -> Path:
+    path = tmp_path / 'corrupt.mcap'
+    path.write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 4)
+    return path
+
+
+@pytest.mark.parametrize(('case', 'message'), [
+    ('missing bag', 'no such bag'),
+    ('corrupt bag', 'unreadable bag'),
+    ('no imu topic', 'no topic /imu/other'),
+    ('bad truth csv', 'expected the header x_m,u_m'),
+    ('truth without topic', 'no topic /track/irregularity_truth'),
+    ('bad params', 'method'),
+])
+def test_bad_input_exits_2_naming_the_file_and_writes_nothing(simulated, tmp_path: Path,
+                                                              capsys, case: str,
+                                                              message: str) -> None:
+    bag, _ = simulated
+    named = {'missing bag': tmp_path / 'absent', 'corrupt bag': _corrupt(tmp_path)}
+    args = ['review', str(named.get(case, bag)), '--out', str(tmp_path / 'out'),
+            '--no-uncertainty']
+    if case == 'no imu topic':
+        args += ['--imu-topic', '/imu/other']
+        named[case] = bag
+    if case == 'bad truth csv':
+        named[case] = tmp_path / 'truth.csv'
+        named[case].write_text('x,u\n0,0\n1,0\n', encoding='utf-8')
+        args += ['--truth', str(named[case])]
+    if case == 'truth without topic':
+        named[case] = _no_truth_bag(tmp_path)
+        args += ['--truth', str(named[case])]
+    if case == 'bad params':
+        named[case] = tmp_path / 'params.yaml'
+        named[case].write_text('uncertainty_node:\n  ros__parameters:\n    method: magic\n',
+                               encoding='utf-8')
+        args += ['--params', str(named[case])]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('error: ') and err.count('\n') == 1
+    assert str(named[case]) in err and message in err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(('out', '.out'))) == []
+
+
+def _no_truth_bag(tmp_path: Path) -> Path:
+    """A bag with IMU and odometry but no truth topic."""
+    from railgsa_ros.bag import BagWriter, RunEncoder
+
+    run = run_scenario('german-low', SPEED, 1.0, 1000.0, 'ideal', 3)
+    encoder = RunEncoder(run)
+    path = tmp_path / 'no_truth'
+    with BagWriter(path, 'mcap') as writer:
+        topics = encoder.topics()
+        for key in ('imu', 'odom'):
+            writer.add_topic(*topics[key])
+        batches = encoder.encode()
+        writer.write_batches({topics[k][0]: batches[k] for k in ('imu', 'odom')})
+    return path
