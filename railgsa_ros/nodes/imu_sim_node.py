@@ -110,6 +110,9 @@ def main(args: list[str] | None = None) -> int:
     except RailGsaError as exc:
         print(f'error: {exc}', file=sys.stderr)
         code = 2
+    except Exception:
+        if rclpy.ok():  # a real error; after SIGINT/SIGTERM a callback may hit the closed context
+            raise
     finally:
         if node is not None:
             node.destroy_node()
