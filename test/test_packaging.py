@@ -99,7 +99,7 @@ def test_core_imports_no_ros_and_needs_no_share_directory() -> None:
         if ros:
             offenders[str(path.relative_to(REPO))] = ros
         assert 'get_package_share_directory' not in path.read_text(), path
-    assert offenders == {}
+    assert offenders == {}, f'ROS imports outside railgsa_ros/nodes/ (move them): {offenders}'
 
 
 def test_installed_railgsa_script_lists_the_subcommands() -> None:
