@@ -111,11 +111,13 @@ class IrregularityNode(Node):
         """Reject invalid values or combinations with the reason; build the new model early."""
         values, reason = merged(self._values, SPECS, params)
         self._candidate = None
-        if reason is None and any(p.name in MODEL_PARAMS for p in params):
-            try:
-                self._candidate = build_model(values, self._noise_variance)
+        if any(p.name in MODEL_PARAMS for p in params):
+            try:  # the core's reasons are the more telling ones
+                candidate = build_model(values, self._noise_variance)
             except ConfigError as exc:
                 reason = str(exc)
+            else:
+                self._candidate = candidate if reason is None else None
         return SetParametersResult(successful=reason is None, reason=reason or '')
 
     def _apply_parameters(self, params: list[Parameter]) -> None:

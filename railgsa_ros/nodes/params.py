@@ -80,13 +80,10 @@ def merged(current: Mapping[str, Any], specs: Sequence[ParamSpec],
     """Current values updated with ``changes`` (only declared specs), and the first reason to
     reject one of them (None if all pass ``ParamSpec.check``)."""
     by_name = {s.name: s for s in specs}
-    values = dict(current)
+    values, reasons = dict(current), []
     for param in changes:
         spec = by_name.get(param.name)
-        if spec is None:
-            continue
-        reason = spec.check(param.value)
-        if reason is not None:
-            return values, reason
-        values[param.name] = param.value
-    return values, None
+        if spec is not None:
+            reasons.append(spec.check(param.value))
+            values[param.name] = param.value
+    return values, next((r for r in reasons if r is not None), None)

@@ -1,0 +1,368 @@
+"""irregularity_node in-process: outputs equal the offline pipeline one-to-one, parameters, bad
+input counted by reason on /diagnostics, odometry, REP 145 covariance, sim time."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+pytestmark = pytest.mark.ros
+
+REPO = Path(__file__).resolve().parents[1]
+#: a short band delay (1776 samples) keeps the tests fast; no odometry unless a test wants it
+PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0}
+T0_NS = 1_000_000_000  # scenario stamps start at 0, which is not a valid header stamp
+G = 9.80665
+
+
+@pytest.fixture(scope='module')
+def run() -> Any:
+    """6 s of German-low track at 40 m/s through an ideal 1 kHz IMU."""
+    from railgsa_ros.scenario import run_scenario
+
+    return run_scenario('german-low', speed_mps=40.0, duration_s=6.0, rate_hz=1000.0,
+                        sensor='ideal', seed=1)
+
+
+def imu_msgs(stamps_ns: np.ndarray, accel_z: np.ndarray, frame: str = 'imu_link',
+             variance: float = -1.0) -> list:
+    """Imu messages; variance -1 writes the REP 145 'absent' sentinel in element 0."""
+    from sensor_msgs.msg import Imu
+
+    msgs = []
+    for stamp, a in zip(stamps_ns.tolist(), np.asarray(accel_z, float).tolist(), strict=True):
+        m = Imu()
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(int(stamp), 1_000_000_000)
+        m.header.frame_id = frame
+        m.linear_acceleration.z = a
+        m.orientation_covariance[0] = -1.0
+        if variance == -1.0:
+            m.linear_acceleration_covariance[0] = -1.0
+        else:
+            m.linear_acceleration_covariance[0::4] = variance
+        msgs.append(m)
+    return msgs
+
+
+def offline(stamps_ns: np.ndarray, accel_z: np.ndarray, speed: float = 40.0,
+            noise_variance: float | None = None, **params: Any) -> Any:
+    """The offline pipeline with the node's parameters on the same samples (no flush)."""
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.pipeline import InversionPipeline
+
+    cfg = {**PARAMS, **params}
+    config = InversionConfig.from_mapping({k: v for k, v in cfg.items()
+                                           if k not in ('use_odom', 'wrong_frame_policy')})
+    return InversionPipeline(config, None, noise_variance).push(stamps_ns, accel_z, speed)
+
+
+class Rig:
+    """An IrregularityNode plus a test node publishing imu/data (and odom) and recording
+    track/irregularity and /diagnostics."""
+
+    def __init__(self, ros_context: Any, spin: Callable, wait_for: Callable,
+                 **params: Any) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PointStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.node import Node
+        from rclpy.parameter import Parameter
+        from sensor_msgs.msg import Imu
+
+        from railgsa_ros.nodes.irregularity_node import IrregularityNode
+        from railgsa_ros.nodes.qos import output_qos, sensor_qos
+
+        self.wait_for = wait_for
+        overrides = [Parameter(k, value=v) for k, v in {**PARAMS, **params}.items()]
+        self.node = spin(IrregularityNode(context=ros_context, parameter_overrides=overrides))
+        self.test = Node('irregularity_test', context=ros_context)
+        self.lock = threading.Lock()
+        self.out: list[tuple[int, float, float, str]] = []
+        self.diag: list[dict[str, tuple[bytes, str, dict[str, str]]]] = []
+        self.test.create_subscription(PointStamped, 'track/irregularity', self._on_out,
+                                      output_qos(20_000))  # holds a whole test run
+        self.test.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.imu = self.test.create_publisher(Imu, 'imu/data', sensor_qos())
+        self.odom = self.test.create_publisher(Odometry, 'odom', output_qos(10))
+        spin(self.test)
+        assert wait_for(lambda: self.imu.get_subscription_count() > 0, 15.0)
+        assert wait_for(lambda: self.node.count_subscribers('track/irregularity') > 0, 15.0)
+        time.sleep(0.2)
+
+    def _on_out(self, msg: Any) -> None:
+        with self.lock:
+            self.out.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+                             msg.point.x, msg.point.z, msg.header.frame_id))
+
+    def _on_diag(self, msg: Any) -> None:
+        statuses = {s.name.split(': ', 1)[1]: (s.level, s.message,
+                                               {kv.key: kv.value for kv in s.values})
+                    for s in msg.status if s.name.startswith('irregularity_node: ')}
+        if statuses:
+            with self.lock:
+                self.diag.append(statuses)
+
+    def publish(self, msgs: list, burst: int = 200) -> None:
+        """Publish in bursts (about 4 kHz) that the reader history (1000) absorbs."""
+        for i, msg in enumerate(msgs):
+            self.imu.publish(msg)
+            if i % burst == burst - 1:
+                time.sleep(0.05)
+
+    def outputs(self, count: int, timeout: float = 20.0) -> tuple[np.ndarray, ...]:
+        """Wait for ``count`` outputs; stamps (int64), chainage, u, frame ids."""
+        assert self.wait_for(lambda: len(self.out) >= count, timeout), \
+            (len(self.out), count, self.node.counters())
+        time.sleep(0.1)
+        with self.lock:
+            stamps, x, z, frames = zip(*self.out, strict=True)
+        return np.array(stamps, np.int64), np.array(x), np.array(z), frames
+
+    def diagnostics(self, pred: Callable[[dict], bool], timeout: float = 10.0) -> dict:
+        """The first /diagnostics statuses (task -> (level, message, values)) received that
+        satisfy ``pred``."""
+        found: list[dict] = []
+
+        def check() -> bool:
+            with self.lock:
+                found[:] = [d for d in self.diag if pred(d)][:1]
+            return bool(found)
+        assert self.wait_for(check, timeout), self.diag[-1:] or 'no /diagnostics'
+        return found[0]
+
+
+@pytest.fixture
+def rig(ros_context: Any, spin: Callable, wait_for: Callable) -> Iterator[Callable[..., Rig]]:
+    """``rig(**params)`` -> a Rig with PARAMS overridden by params."""
+    yield lambda **params: Rig(ros_context, spin, wait_for, **params)
+
+
+def _counted(reason: str, count: int, received: int) -> Callable[[dict], bool]:
+    """/diagnostics once ``received`` messages were taken in, ``count`` of them for reason."""
+    return lambda d: (d['imu input'][2]['received'] == str(received)
+                      and d['imu input'][2][reason] == str(count))
+
+
+def test_outputs_equal_the_offline_pipeline_one_to_one(run: Any, rig: Callable) -> None:
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    ref = offline(stamps, acc)
+    assert 0 < len(ref) < len(stamps)  # the band delay holds the last D samples back
+    r = rig()
+    r.publish(imu_msgs(stamps, acc))
+    got_t, got_x, got_z, frames = r.outputs(len(ref))
+    np.testing.assert_array_equal(got_t, ref.stamps_ns)
+    np.testing.assert_array_equal(got_t, stamps[:len(ref)])
+    np.testing.assert_array_equal(got_z, ref.u_m)  # spectral: bit-identical for any batching
+    # chainage is a running sum continued across pushes: equal to rounding (1e-14 relative)
+    np.testing.assert_allclose(got_x, ref.chainage_m, rtol=1e-12, atol=1e-9)
+    assert set(frames) == {'track'}
+    d = r.diagnostics(lambda d: d['inversion'][2]['published'] == str(len(ref)))
+    values = d['inversion'][2]
+    assert values['band_delay_samples'] == str(len(stamps) - len(ref))
+    assert values['method'] == 'spectral' and values['stability_margin_per_s'] == 'inf'
+    busy = r.diagnostics(lambda d: d['inversion'][2]['latency_p50_ms'] != 'nan')['inversion'][2]
+    assert float(busy['latency_max_ms']) >= float(busy['latency_p50_ms']) > 0
+    assert d['imu input'][2]['accepted'] == str(len(stamps))
+    assert d['imu input'][2]['rejected'] == '0'
+
+
+def test_defaults_equal_config_file() -> None:
+    from railgsa_ros.nodes.irregularity_node import NODE_NAME, SPECS
+
+    doc = yaml.safe_load((REPO / 'config' / 'irregularity.yaml').read_text())
+    params = doc[NODE_NAME]['ros__parameters']
+    defaults = {s.name: s.default for s in SPECS}
+    assert params and all(defaults[k] == v for k, v in params.items()), params
+
+
+def test_parameter_changes_validated_and_applied_with_a_flush(run: Any, rig: Callable) -> None:
+    from rclpy.parameter import Parameter
+
+    r = rig()
+    node = r.node
+    rejected = {
+        'gain': (-1.0, 'range'),
+        'method': ('analytical', 'D = 0'),
+        'band': ('none', 'spectral'),  # the spectral method needs a band
+        'wrong_frame_policy': ('maybe', 'one of'),
+        'imu_qos_depth': (500, 'read-only'),
+        'k_s': (1e12, 'range'),
+    }
+    for name, (value, why) in rejected.items():
+        [result] = node.set_parameters([Parameter(name, value=value)])
+        assert not result.successful and why in result.reason, (name, result.reason)
+    assert node.get_parameter('method').value == 'spectral'
+
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    half = 3000
+    r.publish(imu_msgs(stamps[:half], acc[:half]))
+    assert r.wait_for(lambda: len(r.out) >= half - 1776, 10.0)
+    [result] = node.set_parameters([Parameter('band_order', value=3)])
+    assert result.successful, result.reason
+    r.publish(imu_msgs(stamps[half:], acc[half:]))
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.pipeline import InversionPipeline
+
+    cfg = InversionConfig.from_mapping({k: v for k, v in PARAMS.items() if k != 'use_odom'})
+    first = InversionPipeline(cfg)
+    ref1 = first.push(stamps[:half], acc[:half], 40.0)
+    tail = first.flush()
+    ref2 = InversionPipeline(cfg.with_(band_order=3)).push(stamps[half:], acc[half:], 40.0)
+    want_t = np.concatenate([ref1.stamps_ns, tail.stamps_ns, ref2.stamps_ns])
+    want_z = np.concatenate([ref1.u_m, tail.u_m, ref2.u_m])
+    got_t, _, got_z, _ = r.outputs(len(want_t))
+    np.testing.assert_array_equal(got_t, want_t)  # every stamp once, in order, across the swap
+    np.testing.assert_array_equal(got_z, want_z)
+    r.diagnostics(lambda d: d['inversion'][2]['rebuilds'] == '1')
+
+
+def test_invalid_start_parameters_raise_config_error(ros_context: Any) -> None:
+    from rclpy.parameter import Parameter
+
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.nodes.irregularity_node import IrregularityNode
+
+    for name, value, why in (('method', 'banana', 'method'), ('rate_hz', 0.5, 'rate_hz'),
+                             ('speed_mps', 1, 'expected a float'),
+                             ('vehicle_file', '/nonexistent.yaml', 'nonexistent')):
+        with pytest.raises(ConfigError, match=why):
+            IrregularityNode(context=ros_context,
+                             parameter_overrides=[Parameter(name, value=value)])
+
+
+@pytest.mark.parametrize(('case', 'reason'), [
+    ('nan', 'rejected_nan'), ('inf', 'rejected_nan'), ('saturated', 'rejected_saturated'),
+    ('huge', 'rejected_saturated'), ('out_of_order', 'rejected_out_of_order'),
+    ('duplicate', 'rejected_duplicate'), ('wrong_frame', 'rejected_wrong_frame'),
+    ('zero_stamp', 'rejected_malformed'), ('empty_frame', 'rejected_malformed'),
+    ('bad_nanosec', 'rejected_malformed')])
+def test_bad_input_counted_by_reason_and_node_keeps_running(case: str, reason: str, run: Any,
+                                                            rig: Callable) -> None:
+    from builtin_interfaces.msg import Time
+
+    stamps, acc = run.stamps_ns[:2400] + T0_NS, run.accel[:2400, 2].copy()
+    msgs = imu_msgs(stamps, acc)
+    bad = [100, 101, 102]
+    for i in bad:
+        m = msgs[i]
+        if case in ('nan', 'inf', 'saturated', 'huge'):
+            m.linear_acceleration.z = {'nan': float('nan'), 'inf': -float('inf'),
+                                       'saturated': 8 * G, 'huge': 1e300}[case]
+        elif case == 'out_of_order':
+            earlier = msgs[i - 50].header.stamp
+            m.header.stamp = Time(sec=earlier.sec, nanosec=earlier.nanosec + 1)
+        elif case == 'duplicate':
+            m.header.stamp = Time(sec=msgs[99].header.stamp.sec,
+                                  nanosec=msgs[99].header.stamp.nanosec)
+        elif case == 'wrong_frame':
+            m.header.frame_id = 'base_link'
+        elif case == 'zero_stamp':
+            m.header.stamp.sec = m.header.stamp.nanosec = 0
+        elif case == 'empty_frame':
+            m.header.frame_id = ''
+        else:
+            m.header.stamp.nanosec = 1_500_000_000
+    r = rig()
+    r.publish(msgs)
+    d = r.diagnostics(_counted(reason, len(bad), len(msgs)))
+    values = d['imu input'][2]
+    assert values['rejected'] == str(len(bad))
+    assert values['accepted'] == str(len(msgs) - len(bad))
+    why = reason.removeprefix('rejected_')  # the period with the rejections WARNs and says why
+    r.diagnostics(lambda d: d['imu input'][0] == b'\x01' and why in d['imu input'][1])
+    good = np.setdiff1d(np.arange(len(msgs)), bad)
+    ref = offline(stamps[good], acc[good])
+    got_t, _, got_z, _ = r.outputs(len(ref))
+    np.testing.assert_array_equal(got_t, ref.stamps_ns)
+    np.testing.assert_array_equal(got_z, ref.u_m)
+    assert np.all(np.isfinite(got_z))
+
+
+def test_wrong_frame_accepted_by_policy(run: Any, rig: Callable) -> None:
+    stamps, acc = run.stamps_ns[:2200] + T0_NS, run.accel[:2200, 2]
+    r = rig(wrong_frame_policy='accept')
+    r.publish(imu_msgs(stamps, acc, frame='imu_mount'))
+    d = r.diagnostics(_counted('wrong_frame_accepted', len(stamps), len(stamps)))
+    assert d['imu input'][2]['rejected_wrong_frame'] == '0'
+    ref = offline(stamps, acc)
+    np.testing.assert_array_equal(r.outputs(len(ref))[2], ref.u_m)
+
+
+@pytest.mark.parametrize('policy', ['reset', 'bridge'])
+def test_gap_reset_or_bridged_without_a_spike(policy: str, run: Any, rig: Callable) -> None:
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    cut = np.r_[0:2500, 2530:len(stamps)]  # 30 ms missing: bridged (<= 50 ms) or reset
+    r = rig(gap_policy=policy)
+    r.publish(imu_msgs(stamps[cut], acc[cut]))
+    d = r.diagnostics(_counted('gap', 1, len(cut)))
+    assert d['imu input'][2]['reset'] == str(int(policy == 'reset'))
+    assert d['imu input'][2]['bridged'] == str(30 if policy == 'bridge' else 0)  # 1 ms apart
+    ref = offline(stamps[cut], acc[cut], gap_policy=policy)
+    got_t, _, got_z, _ = r.outputs(len(ref))
+    np.testing.assert_array_equal(got_t, ref.stamps_ns)
+    np.testing.assert_array_equal(got_z, ref.u_m)
+    assert set(got_t) <= set(stamps[cut])  # bridged samples are never published
+    clean = offline(stamps, acc)
+    assert np.max(np.abs(got_z)) <= 1.2 * np.max(np.abs(clean.u_m))  # no spike at the gap
+
+
+def test_speed_from_odometry_and_warning_without_it(run: Any, rig: Callable) -> None:
+    from nav_msgs.msg import Odometry
+
+    stamps, acc = run.stamps_ns[:2500] + T0_NS, run.accel[:2500, 2]
+    r = rig(use_odom=True, speed_mps=25.0, odom_timeout_s=10.0)
+    r.publish(imu_msgs(stamps[:200], acc[:200]))
+    d = r.diagnostics(lambda d: d['inversion'][0] == b'\x01')
+    assert 'no odometry' in d['inversion'][1] and d['inversion'][2]['speed_source'] == 'parameter'
+    odom = Odometry()
+    odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(int(stamps[200]), 10**9)
+    odom.twist.twist.linear.x = 40.0
+    assert r.wait_for(lambda: r.odom.get_subscription_count() > 0, 10.0)
+    r.odom.publish(odom)
+    assert r.wait_for(lambda: r.node._intake.odom is not None, 5.0)
+    r.publish(imu_msgs(stamps[200:], acc[200:]))
+    d = r.diagnostics(lambda d: d['inversion'][0] == b'\x00')
+    assert d['inversion'][2]['speed_source'] == 'odom' and d['inversion'][2]['speed_mps'] == '40'
+    speed = np.where(np.arange(len(stamps)) < 200, 25.0, 40.0)
+    ref = offline(stamps, acc, speed=speed)
+    np.testing.assert_allclose(r.outputs(len(ref))[1], ref.chainage_m, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize(('variance', 'used'), [(4e-4, 4e-4), (-1.0, None), (0.0, None),
+                                                (float('nan'), None)])
+def test_rep145_covariance_sets_the_kalman_noise(variance: float, used: float | None, run: Any,
+                                                  rig: Callable) -> None:
+    stamps, acc = run.stamps_ns[:2400] + T0_NS, run.accel[:2400, 2]
+    msgs = imu_msgs(stamps, acc, variance=variance)
+    if np.isnan(variance):
+        for m in msgs:
+            m.linear_acceleration_covariance[0] = float('nan')
+            m.linear_acceleration_covariance[8] = 1.0  # ignored: element 0 says absent
+    r = rig(method='kalman')
+    r.publish(msgs)
+    ref = offline(stamps, acc, method='kalman', noise_variance=used)
+    other = offline(stamps, acc, method='kalman', noise_variance=1e-2)
+    got_z = r.outputs(len(ref))[2]
+    np.testing.assert_allclose(got_z, ref.u_m, rtol=1e-9, atol=1e-12 * np.abs(ref.u_m).max())
+    assert np.abs(other.u_m - ref.u_m).max() > 1e-6 * np.abs(ref.u_m).max()
+
+
+def test_sim_time_outputs_carry_imu_stamps(run: Any, rig: Callable) -> None:
+    from builtin_interfaces.msg import Time
+    from rosgraph_msgs.msg import Clock
+
+    r = rig(use_sim_time=True)
+    clock = r.test.create_publisher(Clock, '/clock', 10)
+    clock.publish(Clock(clock=Time(sec=1234)))
+    stamps, acc = run.stamps_ns[:2000] + T0_NS, run.accel[:2000, 2]
+    r.publish(imu_msgs(stamps, acc))
+    ref = offline(stamps, acc)
+    got_t = r.outputs(len(ref))[0]
+    np.testing.assert_array_equal(got_t, stamps[:len(ref)])
