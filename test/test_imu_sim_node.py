@@ -70,7 +70,7 @@ def sim_node(ros_context: object, **overrides: object):
 def test_publishes_the_offline_run_at_the_configured_rate(ros_context, spin, wait_for) -> None:
     rec = Recorder(ros_context)
     spin(rec.node)
-    node = spin(sim_node(ros_context))
+    node = spin(sim_node(ros_context, frame_id='imu_front'))
     offline = run_scenario(RUN['profile'], RUN['speed_mps'], RUN['duration_s'], RUN['rate_hz'],
                            RUN['sensor'], RUN['seed'], defects=RUN['defects'])
     n = offline.stamps_ns.size
@@ -96,12 +96,16 @@ def test_publishes_the_offline_run_at_the_configured_rate(ros_context, spin, wai
         k = index[stamp]
         assert (msg.linear_acceleration.x, msg.linear_acceleration.y,
                 msg.linear_acceleration.z) == tuple(offline.accel[k])
-        assert msg.header.frame_id == 'imu_link' and msg.orientation_covariance[0] == -1
+        assert msg.header.frame_id == 'imu_front' and msg.orientation_covariance[0] == -1
     assert imu[truth[0]].linear_acceleration_covariance[0] == pytest.approx(
         offline.accel_covariance, rel=1e-12)
     odom = rec.stamps('odom')
     assert odom.size == pytest.approx(RUN['duration_s'] * 50, abs=2)
     assert set(odom) <= set(offline.stamps_ns + node.offset_ns)
+    (status,) = node.diagnostics.publish().status
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.name == 'imu_sim: simulation' and status.message == 'run finished'
+    assert values['published'] == values['samples'] == str(n)
 
 
 def test_follows_the_simulated_clock(ros_context, spin, wait_for) -> None:

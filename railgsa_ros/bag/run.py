@@ -40,16 +40,16 @@ class RunEncoder:
     """Serialises slices of a run as Imu, Odometry and PointStamped (truth) CDR messages.
 
     ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance
-    diagonal; 0 = unknown; None = ``run.accel_covariance``). Frame: ``run.frame_id``
-    (default imu_link). Odometry samples the run at ``odom_rate_hz`` with pose.position.x =
-    chainage (m) and twist.twist.linear.x = speed (m/s). Truth: point.x = chainage (m),
-    point.z = irregularity (m) at every IMU stamp, frame ``track``.
+    diagonal; 0 = unknown; None = ``run.accel_covariance``). Imu frame: ``frame_id``, else
+    ``run.frame_id``, else imu_link. Odometry samples the run at ``odom_rate_hz`` with
+    pose.position.x = chainage (m) and twist.twist.linear.x = speed (m/s). Truth: point.x =
+    chainage (m), point.z = irregularity (m) at every IMU stamp, frame ``track``.
     """
 
     def __init__(self, run: Any, accel_variance: float | None = None,
-                 odom_rate_hz: float = 50.0) -> None:
+                 odom_rate_hz: float = 50.0, frame_id: str | None = None) -> None:
         self.run = run
-        self.frame_id = getattr(run, 'frame_id', 'imu_link')
+        self.frame_id = frame_id or getattr(run, 'frame_id', 'imu_link')
         if accel_variance is None:
             accel_variance = getattr(run, 'accel_covariance', 0.0)
         self.odom_rate_hz = float(odom_rate_hz)

@@ -6,7 +6,8 @@ Stamps are the run's sensor stamps shifted so that the first sample falls on the
 Messages are the same CDR bytes as in a bag (``bag.RunEncoder``), published raw.
 
 Topics: ``imu/data`` (sensor_msgs/Imu, BEST_EFFORT, depth 1 s of samples), ``odom``
-(nav_msgs/Odometry) and ``track/irregularity_truth`` (geometry_msgs/PointStamped), RELIABLE.
+(nav_msgs/Odometry) and ``track/irregularity_truth`` (geometry_msgs/PointStamped), RELIABLE;
+``/diagnostics`` once a second (samples published, rate).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from railgsa_ros.bag import RunEncoder
 from railgsa_ros.bag.messages import history_depth
 from railgsa_ros.errors import RailGsaError
 from railgsa_ros.imu import PRESETS
+from railgsa_ros.nodes.diagnostics import OK, WARN, DiagnosticsPublisher, Report
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, output_qos, sensor_qos
 from railgsa_ros.scenario import run_scenario
@@ -47,6 +49,7 @@ SPECS = (
     ParamSpec('odom_rate_hz', 50.0, 'odometry rate, Hz', bounds=(0.1, 1000.0), read_only=True),
     ParamSpec('publish_period_s', 0.01, 'timer period; each tick publishes every sample due, s',
               bounds=(0.001, 0.5), read_only=True),
+    ParamSpec('frame_id', 'imu_link', 'frame of the Imu messages (REP 145)', read_only=True),
 )
 
 
@@ -59,7 +62,8 @@ class ImuSimNode(Node):
         self.run = run_scenario(p['profile'], p['speed_mps'], p['duration_s'], p['rate_hz'],
                                 p['sensor'], p['seed'], defects=p['defects'] or None,
                                 vehicle=p['vehicle_file'] or None)
-        self.encoder = RunEncoder(self.run, odom_rate_hz=p['odom_rate_hz'])
+        self.encoder = RunEncoder(self.run, odom_rate_hz=p['odom_rate_hz'],
+                                  frame_id=p['frame_id'])
         depth = max(MIN_SENSOR_DEPTH, history_depth(p['rate_hz']))
         self._pubs = {
             'imu': self.create_publisher(Imu, 'imu/data', sensor_qos(depth)),
@@ -71,6 +75,9 @@ class ImuSimNode(Node):
         self.offset_ns: int | None = None
         self.published = 0
         self._timer = self.create_timer(p['publish_period_s'], self._tick)
+        self._counted = 0
+        self.diagnostics = DiagnosticsPublisher(self, hardware_id=f'imu_sim/{p["sensor"]}')
+        self.diagnostics.add('simulation', self._report)
         self.get_logger().info(
             f'simulated {len(self.encoder)} samples ({p["duration_s"]:g} s at '
             f'{p["rate_hz"]:g} Hz, {p["profile"]}, {p["sensor"]}); publishing')
@@ -94,6 +101,18 @@ class ImuSimNode(Node):
         if self.published == len(self.encoder):
             self._timer.cancel()
             self.get_logger().info('run finished: all samples published')
+
+
+    def _report(self, elapsed_s: float) -> Report:
+        """Diagnostics: samples published in total and per second over the last period."""
+        rate, self._counted = (self.published - self._counted) / elapsed_s, self.published
+        values = {'published': self.published, 'samples': len(self.encoder),
+                  'rate_hz': rate, 'sensor': self.run.sensor.name}
+        if self.published == len(self.encoder):
+            return Report(OK, 'run finished', values)
+        if self.offset_ns is None:
+            return Report(WARN, 'waiting for the clock (use_sim_time without /clock)', values)
+        return Report(OK, 'publishing', values)
 
 
 def main(args: list[str] | None = None) -> int:
