@@ -161,6 +161,11 @@ def test_bode_table_matches_the_characteristic_polynomial(tmp_path: Path) -> Non
     assert freqs[0] == pytest.approx(2.33, abs=0.01) and freqs[1] == pytest.approx(57.3, abs=0.1)
     zeros_s = re.search(r'zeros of G_s\s+\[rad/s\]: (.*)', result.stdout).group(1)
     assert zeros_s == f'{-k_s / c:.4g}, 0, 0'
+    zeros_us = re.search(r'zeros of G_us\s+\[rad/s\]: (.*)', result.stdout).group(1).split(', ')
+    pair = np.roots([m_s, c, k_s])  # wheel: s^2 (m_s s^2 + c s + k_s) over the same denominator
+    assert zeros_us[2:] == ['0', '0']
+    np.testing.assert_allclose([complex(z) for z in zeros_us[:2]], np.sort_complex(pair),
+                               rtol=1e-3)
     vehicle = tmp_path / 'v.yaml'
     vehicle.write_text('vehicle: {m_s: 9875.0, m_us: 1100.0, k_s: 2.13e+6, k_us: 1.42e+8}')
     bad = railgsa('bode', '--vehicle', str(vehicle), '--out', str(tmp_path / 'x.png'))
