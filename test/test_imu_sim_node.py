@@ -76,13 +76,13 @@ def test_publishes_the_offline_run_at_the_configured_rate(ros_context, spin, wai
     n = offline.stamps_ns.size
     assert wait_for(lambda: node.published == n, 10.0)
     assert wait_for(lambda: rec.count('truth') == n and rec.count('imu') >= n - 2, 5.0)
-    # Rate: arrivals spread over the run's duration (first tick publishes the first sample).
+    # Rate: paced by the clock. No sample arrives before it is due (late is possible on a loaded
+    # machine, early is not), and the whole run takes about its own duration.
     with rec.lock:
         arrivals = np.array([t for t, _ in rec.got['truth']])
-    span = arrivals[-1] - arrivals[0]
-    assert span == pytest.approx(offline.stamps_ns[-1] / 1e9 - offline.stamps_ns[0] / 1e9,
-                                 abs=0.25)
-    assert (n - 1) / span == pytest.approx(RUN['rate_hz'], rel=0.15)
+    due = (offline.stamps_ns - offline.stamps_ns[0]) / 1e9
+    assert np.all(arrivals - arrivals[0] >= due - 0.1)
+    assert due[-1] - 0.1 <= arrivals[-1] - arrivals[0] <= due[-1] + 1.5
     # Stamps: the offline stamps shifted by one offset; values: the offline values.
     truth = rec.stamps('truth')
     np.testing.assert_array_equal(truth - truth[0], offline.stamps_ns - offline.stamps_ns[0])
