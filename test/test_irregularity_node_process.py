@@ -1,0 +1,75 @@
+"""irregularity_node as a separate process: 10 s at 1 kHz without loss, SIGINT, bad parameters."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import signal
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline
+
+pytestmark = pytest.mark.ros
+
+MODULE = 'railgsa_ros.nodes.irregularity_node'
+ROS_ARGS = [a for k, v in PARAMS.items() for a in ('-p', f'{k}:={str(v).lower()}')]
+
+
+def test_ten_seconds_at_1khz_without_loss_then_sigint(ros_context: Any, spin: Callable,
+                                                       wait_for: Callable,
+                                                       start_node: Callable) -> None:
+    from geometry_msgs.msg import PointStamped
+    from rclpy.node import Node
+    from sensor_msgs.msg import Imu
+
+    from railgsa_ros.nodes.qos import output_qos, sensor_qos
+    from railgsa_ros.simulate import simulate
+    from railgsa_ros.vehicle import VehicleParams
+
+    n = 10_000
+    x = np.arange(n) * 40.0 / 1000.0
+    u = 1e-3 * np.sin(2 * np.pi * x / 7.0) + 5e-4 * np.sin(2 * np.pi * x / 19.0)
+    acc = simulate(u, 1e-3, VehicleParams())[0] + 9.80665
+    stamps = T0_NS + np.arange(n, dtype=np.int64) * 1_000_000
+    msgs = imu_msgs(stamps, acc)
+    ref = offline(stamps, acc)
+
+    proc = start_node(MODULE, ROS_ARGS)
+    test = spin(Node('irregularity_process_test', context=ros_context))
+    got: list[int] = []
+    lock = threading.Lock()
+
+    def keep(msg: PointStamped) -> None:
+        with lock:
+            got.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+    test.create_subscription(PointStamped, 'track/irregularity', keep, output_qos(20_000))
+    pub = test.create_publisher(Imu, 'imu/data', sensor_qos())
+    assert wait_for(lambda: pub.get_subscription_count() > 0, 90.0), proc.stop().stderr
+    assert wait_for(lambda: test.count_publishers('track/irregularity') > 0, 15.0)
+    time.sleep(0.5)  # let the node's publisher match our reader too
+    start = time.monotonic()
+    for k, msg in enumerate(msgs):  # paced at 1 kHz on absolute deadlines
+        delay = start + k * 1e-3 - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        pub.publish(msg)
+    assert wait_for(lambda: len(got) >= len(ref), 20.0), (len(got), len(ref))
+    time.sleep(0.2)
+    result = proc.stop(signal.SIGINT)
+    with lock:
+        np.testing.assert_array_equal(np.array(got, np.int64), ref.stamps_ns)  # none lost
+    assert result.rc == 0, result.stderr
+    assert 'Traceback' not in result.stderr, result.stderr
+
+
+def test_invalid_parameter_exits_2_with_one_line(start_node: Callable) -> None:
+    proc = start_node(MODULE, ['-p', 'band_order:=9'])
+    proc.proc.wait(timeout=60.0)
+    result = proc.stop()
+    assert result.rc == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('error: '), result.stderr
+    assert 'band_order' in lines[0]
