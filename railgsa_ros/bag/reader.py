@@ -60,7 +60,7 @@ def _one_line(exc: BaseException) -> str:
 @contextmanager
 def open_bag(path: str | Path) -> Iterator[AnyReader]:
     """An open rosbags AnyReader; any failure inside the block becomes InputError naming ``path``
-    (errors raised by our own code pass through)."""
+    (a RailGsaError passes through unchanged)."""
     try:
         with AnyReader(storage_paths(path), default_typestore=typestore()) as reader:
             yield reader
