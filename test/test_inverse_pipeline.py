@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.inverse import pipeline
 from railgsa_ros.inverse.config import InversionConfig, load_config
 from railgsa_ros.inverse.pipeline import InversionPipeline, vertical
 from railgsa_ros.inverse.score import band_distance
@@ -184,9 +185,16 @@ def test_vertical_axis_selection():
     assert vertical(accel, 'z')[0] == 3.0 and vertical(accel, '-y')[0] == -2.0
 
 
-def test_config_validation_and_params_file(tmp_path):
+def test_config_validation_and_params_file(tmp_path, monkeypatch):
     with pytest.raises(ConfigError, match='band'):
         InversionConfig(method='spectral', band='none')
+    with pytest.raises(ConfigError, match='band_order'):
+        InversionConfig(method='spectral', band_order=1)
+    monkeypatch.setattr(pipeline, 'DESIGN_PERIODS', 0.5)  # grids too short for the FIR ...
+    monkeypatch.setattr(pipeline, 'MAX_DESIGN_BINS', 1024)  # ... and not allowed to grow
+    with pytest.raises(ConfigError, match='fir_tolerance'):
+        InversionPipeline(InversionConfig(method='feedback'))
+    monkeypatch.undo()
     with pytest.raises(ConfigError, match='rate_hz'):
         InversionConfig(rate_hz=-1)
     path = tmp_path / 'p.yaml'

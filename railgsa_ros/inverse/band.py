@@ -19,7 +19,7 @@ from scipy import fft
 from railgsa_ros.errors import ConfigError
 
 BANDS_M = {'d1': (3.0, 25.0), 'd2': (25.0, 70.0)}  # EN 13848 longitudinal level, m
-_DESIGN_PERIODS = 128  # design grid spans this many periods of the lowest band frequency
+_DESIGN_PERIODS = 32  # default span of a design grid, periods of the lowest band frequency
 
 Response = Callable[[np.ndarray], np.ndarray]
 
@@ -40,9 +40,9 @@ def bandpass_power(f_hz: np.ndarray, f_lo: float, f_hi: float, order: int) -> np
     return 1.0 / (1.0 + x ** (2 * order))
 
 
-def design_grid(rate_hz: float, f_lo: float) -> np.ndarray:
-    """Frequencies (Hz) of a real-FFT design grid long enough for the band's impulse response."""
-    n = 1 << int(np.ceil(np.log2(_DESIGN_PERIODS * rate_hz / f_lo)))
+def design_grid(rate_hz: float, f_lo: float, periods: float = _DESIGN_PERIODS) -> np.ndarray:
+    """Frequencies (Hz) of a real-FFT grid spanning ``periods`` periods of f_lo (Hz) in time."""
+    n = 1 << int(np.ceil(np.log2(periods * rate_hz / f_lo)))
     return fft.rfftfreq(n, 1.0 / rate_hz)
 
 

@@ -77,6 +77,9 @@ class InversionConfig:
         if self.method == 'spectral' and self.band == 'none':
             raise ConfigError('band: the spectral method needs a band (d1 or d2): the exact '
                               'inverse has a double pole at s = 0')
+        if self.method == 'spectral' and self.band_order < 2:
+            raise ConfigError('band_order: the spectral method needs 2 or more: |BP|^2 / G falls '
+                              'only as 1/f with order 1 (1/G grows as f), so no FIR fits it')
         if self.smoother and self.method != 'kalman':
             raise ConfigError('smoother: the RTS smoother belongs to the kalman method')
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.band import (
     band_edges_hz,
     bandpass_power,
@@ -39,6 +40,8 @@ from railgsa_ros.inverse.sanitize import Clean, InputSanitizer
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
+DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
+MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
 
 
 @dataclass(frozen=True)
@@ -127,10 +130,20 @@ class InversionPipeline:
         self.switch_period = NO_BAND_SWITCH
         if cfg.band != 'none':
             vmin = cfg.min_design_speed_mps
-            self._grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, vmin)[0])
-            self._inv_g: np.ndarray | None = None
-            response = self._response(vmin)
-            self.delay_samples = half_length(response, cfg.fir_tolerance)
+            periods = DESIGN_PERIODS
+            while True:  # the grid must hold the whole FIR twice over (no circular wrap)
+                self._grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, vmin)[0], periods)
+                self._inv_g: np.ndarray | None = None
+                response = self._response(vmin)
+                self.delay_samples = half_length(response, cfg.fir_tolerance)
+                if 4 * self.delay_samples + 2 <= 2 * (self._grid.size - 1):
+                    break
+                if self._grid.size > MAX_DESIGN_BINS:
+                    span = 2 * (self._grid.size - 1)
+                    raise ConfigError(f'fir_tolerance: the band response does not decay below '
+                                      f'{cfg.fir_tolerance:g} within {span} samples; raise '
+                                      'fir_tolerance or band_order')
+                periods *= 2
             taps = fir_taps(response, self.delay_samples)
             self.truncation_error = truncation_error(taps, response)
             channels = self.theta.shape[0]
