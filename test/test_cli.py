@@ -184,3 +184,17 @@ def test_demo_runs_and_replaces_its_outputs(tmp_path: Path,
     assert sorted(p.name for p in out.iterdir()) == ['bode.png', 'simulated_bag']
     assert main(['demo', '--out', str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ['bode.png', 'simulated_bag']
+
+
+def test_summary_of_a_bag_without_imu_or_truth(tmp_path: Path) -> None:
+    from railgsa_ros.bag import BagWriter
+    from railgsa_ros.bag.cdr import encode
+    from railgsa_ros.bag.messages import VECTOR3_STAMPED
+
+    stamps = np.arange(11, dtype=np.int64) * 100_000_000
+    with BagWriter(tmp_path / 'other', 'sqlite3') as bag:
+        bag.add_topic('/v', VECTOR3_STAMPED.msgtype)
+        bag.write_batches({'/v': (stamps, encode(VECTOR3_STAMPED, stamps, ['b'], np.ones(3)))})
+    text = simulate.format_summary(tmp_path / 'other')
+    assert re.search(r'/v\s+geometry_msgs/msg/Vector3Stamped\s+11\s+10\.0', text)
+    assert 'duration 1.000 s' in text and 'accel' not in text and 'truth' not in text

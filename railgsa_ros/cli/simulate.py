@@ -89,7 +89,7 @@ def format_summary(path: str | Path) -> str:
     """A one-screen summary of a bag read back from disk: topics, counts, rates, truth range."""
     import numpy as np
 
-    from railgsa_ros.bag import TRUTH_TOPIC, read_imu, read_stamped, summarize
+    from railgsa_ros.bag import IMU_TOPIC, TRUTH_TOPIC, read_imu, read_stamped, summarize
     from railgsa_ros.bag.messages import POINT_STAMPED
 
     path = Path(path)
@@ -106,12 +106,14 @@ def format_summary(path: str | Path) -> str:
         start = min(t.start_ns for t in topics)
         end = max(t.end_ns for t in topics)
         lines.append(f'  duration {(end - start) / 1e9:.3f} s from stamp {start / 1e9:.3f} s')
-    stream = read_imu(path)
-    acc = stream.accel[np.isfinite(stream.accel[:, 2])]
-    lines.append(f'  accel z mean {acc[:, 2].mean():.4f} m/s^2, std {acc[:, 2].std():.4f} '
-                 f'm/s^2, frame {", ".join(sorted(set(stream.frame_ids)))}')
-    if stream.speed_mps.size:
-        lines.append(f'  speed {stream.speed_mps.min():.2f}-{stream.speed_mps.max():.2f} m/s')
+    if any(t.topic == IMU_TOPIC for t in topics):
+        stream = read_imu(path)
+        acc = stream.accel[np.isfinite(stream.accel[:, 2])]
+        lines.append(f'  accel z mean {acc[:, 2].mean():.4f} m/s^2, std {acc[:, 2].std():.4f} '
+                     f'm/s^2, frame {", ".join(sorted(set(stream.frame_ids)))}')
+        if stream.speed_mps.size:
+            lines.append(f'  speed {stream.speed_mps.min():.2f}-{stream.speed_mps.max():.2f} '
+                         'm/s')
     if any(t.topic == TRUTH_TOPIC for t in topics):
         pts = read_stamped(path, TRUTH_TOPIC, POINT_STAMPED.msgtype).values[:, [0, 2]]
         lines.append(f'  truth chainage {pts[:, 0].min():.1f}-{pts[:, 0].max():.1f} m, '
