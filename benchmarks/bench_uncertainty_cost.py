@@ -214,17 +214,17 @@ def accuracy(samples: int) -> None:
           f'widest band {width * 1e3:.3f} mm')
     print(f'{"band":<22}{"points":>7}{"CPU s":>7}{"mean err":>10}{"lower err":>11}'
           f'{"upper err":>11}   (max over samples, % of scale)')
-    for rule, size, germ_samples in (('pem5', 0, 1024), ('pem5', 0, 16384),
-                                     ('lstsq', 40, 1024)):
-        config = UncertaintyConfig(inversion=inversion, rule=rule, rule_size=size,
+    for rule, order, size, germ_samples in (('pem5', 2, 0, 1024), ('pem5', 2, 0, 16384),
+                                            ('lstsq', 2, 40, 1024), ('gauss', 3, 0, 1024)):
+        config = UncertaintyConfig(inversion=inversion, rule=rule, order=order, rule_size=size,
                                    germ_samples=germ_samples)
         start = time.process_time()
         band = offline_bands(run.stamps_ns, run.accel[:, 2], run.speed_mps, config=config)
         cpu = time.process_time() - start
         errs = [100 * np.max(np.abs(a - b)) / scale for a, b in
                 ((band.mean_m, mean), (band.lower_m, lower), (band.upper_m, upper))]
-        points = 19 if rule == 'pem5' else size
-        print(f'{f"{rule} S={germ_samples}":<22}{points:>7}{cpu:>7.2f}{errs[0]:>10.2f}'
+        points = {'pem5': 19, 'gauss': (order + 1) ** len(dists)}.get(rule, size)
+        print(f'{f"{rule} p={order} S={germ_samples}":<22}{points:>7}{cpu:>7.2f}{errs[0]:>10.2f}'
               f'{errs[1]:>11.2f}{errs[2]:>11.2f}')
     se = 100 * np.max(u.std(axis=0)) / np.sqrt(samples) / scale
     print(f'Monte Carlo standard error of the mean: {se:.2f} % of scale')

@@ -223,6 +223,37 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
     assert 0 < float(unc['cpu_fraction_of_one_core']) < 2
 
 
+def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_context: Any,
+                                               wait_for: Callable, tmp_path: Any) -> None:
+    from rclpy.parameter import Parameter
+
+    from railgsa_ros.bag import read_imu, write_run
+    from railgsa_ros.nodes.bag_replay_node import BagReplayNode
+    from railgsa_ros.uncertainty import offline_bands
+
+    bag = write_run(tmp_path / 'run', run, offset_ns=T0_NS)
+    recorded = read_imu(bag)
+    ref = offline_bands(recorded.stamps_ns, recorded.accel[:, 2], 40.0, recorded.frame_ids,
+                        config=node_config())
+    node, listener = rig(qoi='')
+    player = BagReplayNode(context=ros_context, parameter_overrides=[
+        Parameter('bag_path', value=str(bag)), Parameter('rate', value=2.0),
+        Parameter('topics', Parameter.Type.STRING_ARRAY, ['/imu/data']),
+        Parameter('wait_for_subscribers', value=15.0)])
+    try:
+        assert player.play() == recorded.stamps_ns.size
+    finally:
+        player.destroy_node()
+    count = recorded.stamps_ns.size - node.stream.delay_samples  # live: no flush
+    assert wait_for(lambda: len(listener.band) >= count, 30.0), (len(listener.band), count)
+    with listener.lock:
+        got = np.array(listener.band)
+    np.testing.assert_array_equal(got[:, 0].astype(np.int64), ref.stamps_ns[:count])
+    np.testing.assert_allclose(got[:, 1:], np.stack([ref.lower_m, ref.mean_m, ref.upper_m],
+                                                    axis=1)[:count],
+                               rtol=0, atol=1e-12 * np.abs(ref.mean_m).max())
+
+
 def test_invalid_start_parameters_raise_config_error(ros_context: Any, tmp_path: Any) -> None:
     from rclpy.parameter import Parameter
 
