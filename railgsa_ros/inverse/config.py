@@ -49,8 +49,8 @@ class InversionConfig:
     accel_axis: str = _p('z', 'IMU axis (with sign) pointing up in the car body', choices=AXES)
     gravity_mps2: float = _p(9.80665, 'gravity subtracted from the vertical axis, m/s^2',
                              (0.0, 20.0))
-    remove_bias: bool = _p(False, 'band none: subtract the running mean of the acceleration '
-                                  'since the (re)start, an estimate of a constant bias')
+    remove_bias: bool = _p(False, 'subtract the running mean of the acceleration since the '
+                                  '(re)start, an estimate of a constant bias')
     taper_s: float = _p(0.5, 'raised-cosine fade-in after a (re)start and fade-out at flush, s',
                         (0.0, 60.0))
     noise_std_mps2: float = _p(5e-3, 'kalman: accel noise std when the IMU covariance is '

@@ -231,7 +231,7 @@ class InversionPipeline:
         stamps, speed = clean.stamps_ns[sl], clean.speed[sl]
         chain = self._chainage(stamps, speed)
         a_s = clean.accel[sl] - cfg.gravity_mps2
-        if cfg.band == 'none' and cfg.remove_bias:
+        if cfg.remove_bias:
             a_s = self._remove_bias(a_s)
         n0 = self._n + sum(x[0].size for x in self._offline)
         a_s = a_s * taper(n0 + np.arange(a_s.size), round(cfg.taper_s * cfg.rate_hz))
