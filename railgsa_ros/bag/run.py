@@ -52,9 +52,9 @@ class RunEncoder:
         self.frame_id = frame_id or getattr(run, 'frame_id', 'imu_link')
         if accel_variance is None:
             accel_variance = getattr(run, 'accel_covariance', 0.0)
+        self.accel_variance = float(accel_variance)
         self.odom_rate_hz = float(odom_rate_hz)
         self.stamps_ns = np.asarray(run.stamps_ns, dtype=np.int64)
-        self.imu_values = imu_values(run.accel, accel_variance)
         self.odom_index = sample_indices(self.stamps_ns, odom_rate_hz)
         self.imu_rate_hz = _mean_rate(self.stamps_ns)
 
@@ -76,7 +76,8 @@ class RunEncoder:
         truth[:, 2] = np.asarray(run.truth_u_m, dtype=float)[start:stop]
         odom_values = odometry_values(chainage[odom], np.asarray(run.speed_mps)[odom])
         return {
-            'imu': (stamps, cdr.encode(IMU, stamps, [self.frame_id], self.imu_values[start:stop])),
+            'imu': (stamps, cdr.encode(IMU, stamps, [self.frame_id],
+                                       imu_values(run.accel[start:stop], self.accel_variance))),
             'odom': (odom_stamps, cdr.encode(ODOMETRY, odom_stamps, ['odom', 'base_link'],
                                              odom_values)),
             'truth': (stamps, cdr.encode(POINT_STAMPED, stamps, ['track'], truth)),

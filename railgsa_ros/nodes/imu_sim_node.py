@@ -39,8 +39,8 @@ SPECS = (
     ParamSpec('defects', '', 'defects added to the profile, e.g. dip@150:len=10:depth=0.004 '
               '(empty: none)', read_only=True),
     ParamSpec('speed_mps', 20.0, 'vehicle speed, m/s', bounds=(0.1, 150.0), read_only=True),
-    ParamSpec('duration_s', 60.0, 'length of the simulated run, s', bounds=(0.1, 86400.0),
-              read_only=True),
+    ParamSpec('duration_s', 60.0, 'length of the simulated run (computed at start-up), s',
+              bounds=(0.1, 3600.0), read_only=True),
     ParamSpec('rate_hz', 1000.0, 'IMU output rate, Hz', bounds=(1.0, 10000.0), read_only=True),
     ParamSpec('sensor', 'adxl355', 'IMU model preset', choices=tuple(PRESETS), read_only=True),
     ParamSpec('seed', 0, 'random seed of track and sensor', bounds=(0, 2**31 - 1),
