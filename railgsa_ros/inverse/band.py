@@ -4,7 +4,7 @@ A band [lambda_min, lambda_max] (m) at speed v (m/s) is the frequency band [v / 
 v / lambda_min] (Hz). The band-pass is the analogue Butterworth band-pass BP of order n (the
 low-pass prototype order; 2n poles) run forward and backward, i.e. the real, zero-phase response
 |BP(j w)|^2 = 1 / (1 + ((w^2 - w0^2) / (w B))^(2n)), w0^2 = w_lo w_hi, B = w_hi - w_lo:
--6 dB at the band edges, 4n-th order roll-off on each side. The FIR taps sample a response on a
+-6 dB at the band edges, 40 n dB per decade on each side. The FIR taps sample a response on a
 dense FFT grid, are centred (delay D samples) and cut to 2 D + 1 taps where the impulse response
 has decayed below a tolerance; ``truncation_error`` measures what the cut costs.
 """

@@ -1,6 +1,6 @@
 """Input sanitiser: classify every IMU sample before inversion; never raises on data.
 
-Rejected samples are counted by reason: ``nan`` (non-finite acceleration, speed or stamp),
+Rejected samples are counted by reason: ``nan`` (non-finite acceleration or speed),
 ``wrong_frame``, ``saturated`` (|a| >= range - margin), ``out_of_order`` and ``duplicate`` (stamp
 below or equal to the newest accepted one). Accepted samples more than ``gap_factor`` nominal
 periods apart form a ``gap``: with policy ``reset`` the pipeline restarts its filters there; with
