@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.review.exceedances import count_by_level, find_exceedances, magnitudes
+from railgsa_ros.review.exceedances import (
+    count_by_level,
+    describe_counts,
+    find_exceedances,
+    magnitudes,
+)
 from railgsa_ros.review.health import stamp_stats
 from railgsa_ros.review.limits import en13848_limits, speed_class
 from railgsa_ros.review.progress import Progress
@@ -91,6 +96,8 @@ def test_the_band_sets_the_confidence() -> None:
     # 7 +- 2: only the far edge 9 passes AL -> possible; 11 +- 0.5: certain IL
     assert got == [(102, 'IL', 'likely'), (302, 'IL', 'certain'), (502, 'AL', 'possible'),
                    (702, 'IL', 'certain')]
+    assert describe_counts(found) == {'IAL': '0', 'IL': '3 (2 certain, 1 likely)',
+                                      'AL': '1 (1 possible)'}
     assert found[2].peak_u_m == pytest.approx(-7 * MM, abs=1e-6)
     assert (found[0].lower_m, found[0].upper_m) == pytest.approx((-14 * MM, -10 * MM), abs=1e-6)
 

@@ -99,7 +99,7 @@ def build_options(args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Build the review, write the report, print where it is and the headline numbers."""
     from railgsa_ros.review.build import build_review, write_review
-    from railgsa_ros.review.exceedances import count_by_level
+    from railgsa_ros.review.exceedances import describe_counts
     from railgsa_ros.review.progress import Progress
 
     options = build_options(args)
@@ -111,8 +111,7 @@ def run(args: argparse.Namespace) -> int:
                               lambda stage, f: bar.update(round(1000 * f), f'{stage:<10}'))
     finally:
         bar.close()
-    counts = count_by_level(review.exceedances)
-    levels = ', '.join(f'{level} {sum(c.values())}' for level, c in reversed(counts.items()))
+    levels = ', '.join(f'{k} {v}' for k, v in describe_counts(review.exceedances).items())
     total = sum(review.timings.values())
     print(f'{report}\n  {review.duration_s:.1f} s of data reviewed in {total:.1f} s '
           f'({review.duration_s / total:.0f}x real time); exceedances: {levels}')

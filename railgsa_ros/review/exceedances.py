@@ -119,3 +119,13 @@ def count_by_level(exceedances: list[Exceedance]) -> dict[str, Counter[str]]:
     for e in exceedances:
         counts[e.level][e.confidence] += 1
     return counts
+
+
+def describe_counts(exceedances: list[Exceedance]) -> dict[str, str]:
+    """Level -> 'n' or 'n (a certain, b likely, c possible)', most severe level first."""
+    out = {}
+    for level, counts in reversed(count_by_level(exceedances).items()):
+        parts = ', '.join(f'{counts[c]} {c}' for c in CONFIDENCES if counts[c])
+        total = sum(counts.values())
+        out[level] = f'{total} ({parts})' if total else '0'
+    return out

@@ -97,8 +97,8 @@ def _band_label(quantiles: tuple[float, float]) -> str:
 def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[Exceedance],
                   quantiles: tuple[float, float]) -> Path:
     """Irregularity over chainage with the band, the limits and the exceedances; speed below."""
-    fig = _figure(11.0, 5.4)
-    ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    fig = _figure(11.0, 5.0)
+    ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(5, 1))
     x = run.chainage_m
     if run.band is not None:
         _band(ax, x, run.band.lower_m * MM, run.band.upper_m * MM, _band_label(quantiles))
@@ -106,10 +106,14 @@ def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[
     _limit_lines(ax, x, limits.at(run.speed_mps))
     for level in LEVELS:
         picked = [e for e in exceedances if e.level == level]
-        if picked:
-            ax.scatter([e.peak_m for e in picked], [e.peak_u_m * MM for e in picked], s=28,
-                       color=LEVEL_COLOURS[level], edgecolor='k', lw=0.5, zorder=5,
-                       label=f'{level} exceedance ({len(picked)})')
+        for sure in (True, False):  # filled: certain or likely, hollow: possible
+            some = [e for e in picked if (e.confidence != 'possible') == sure]
+            if some:
+                ax.scatter([e.peak_m for e in some], [e.peak_u_m * MM for e in some], s=30,
+                           color=LEVEL_COLOURS[level] if sure else 'white', lw=1.2,
+                           edgecolor=LEVEL_COLOURS[level] if not sure else 'k', zorder=5,
+                           label=f'{level} {"certain/likely" if sure else "possible"} '
+                                 f'({len(some)})')
     ax.set_ylabel(f'irregularity {limits.band.upper()} [mm]')
     ax.grid(alpha=0.3)
     ax.legend(loc='upper right', fontsize=8, ncol=4)
@@ -148,24 +152,25 @@ def plot_sections(path: Path, sections: Sections, limits: Limits,
     """SD per section as bars against the EN 13848-5 alert range of each section's class."""
     fig = _figure(11.0, 3.6)
     ax = fig.subplots()
-    mid = sections.start_m + sections.length_m / 2
     sd_range = limits.sd_at(sections.speed_mps) * MM
     sd = sections.sd_m * MM
     sd_range[np.isnan(sd)] = np.nan
     colour = np.where(sd > sd_range[:, 1], LEVEL_COLOURS['IAL'],
                       np.where(sd > sd_range[:, 0], LEVEL_COLOURS['AL'], '#4c6ef5'))
-    width = 0.8 * sections.length_m
-    ax.bar(mid, np.nan_to_num(sd), width=width, color=colour, label='reconstruction')
+    edges = np.append(sections.start_m, sections.start_m[-1] + sections.length_m)
     if not np.all(np.isnan(sd_range)):
-        ax.bar(mid, sd_range[:, 1] - sd_range[:, 0], bottom=sd_range[:, 0], width=width,
-               color='none', edgecolor='0.2', hatch='//', lw=0.6,
-               label='EN 13848-5 SD alert range [M]')
+        lo, hi = (np.append(sd_range[:, j], sd_range[-1, j]) for j in (0, 1))
+        ax.fill_between(edges, lo, hi, step='post', color=LEVEL_COLOURS['AL'], alpha=0.3, lw=0,
+                        label='EN 13848-5 SD alert range [M]')
+    ax.bar(sections.start_m + sections.length_m / 2, np.nan_to_num(sd),
+           width=0.8 * sections.length_m, color=colour, label='reconstruction')
     if truth is not None:
-        ax.plot(truth.start_m + truth.length_m / 2, truth.sd_m * MM, 'k_', ms=14, mew=2,
-                label='truth')
-    ax.set_xticks(np.append(sections.start_m, sections.start_m[-1] + sections.length_m))
-    ax.tick_params(axis='x', labelrotation=90 if len(sections) > 20 else 0, labelsize=8)
-    ax.set_xlabel('section boundaries: chainage [m]')
+        ax.hlines(truth.sd_m * MM, truth.start_m + 0.05 * truth.length_m,
+                  truth.start_m + 0.95 * truth.length_m, color='k', lw=2, label='truth')
+    step = max(1, -(-len(sections) // 20))  # at most about 20 labelled boundaries
+    ax.set_xticks(edges[::step])
+    ax.set_xlim(edges[0], edges[-1])
+    ax.set_xlabel(f'chainage [m] ({len(sections)} sections)')
     ax.set_ylabel(f'SD {limits.band.upper()} per {sections.length_m:g} m [mm]')
     ax.grid(alpha=0.3, axis='y')
     ax.legend(fontsize=8)
@@ -173,28 +178,34 @@ def plot_sections(path: Path, sections: Sections, limits: Limits,
 
 
 def plot_sensitivity(path: Path, windows: list[Sensitivity]) -> Path:
-    """Sobol' first and total indices and Borgonovo delta per window along the run; one column
-    per quantity of interest, one line per uncertain parameter."""
+    """Per window along the run, one column per quantity of interest: first-order Sobol' indices
+    stacked (the rest up to 1 is interaction), total indices and Borgonovo delta as lines."""
     qois = list(dict.fromkeys(w.qoi for w in windows))
     names = windows[0].names
-    fig = _figure(11.0, 6.0)
+    colours = [f'C{j}' for j in range(len(names))]
+    fig = _figure(11.0, 6.2)
     axes = fig.subplots(3, len(qois), sharex=True, squeeze=False)
     for col, qoi in enumerate(qois):
         ws = [w for w in windows if w.qoi == qoi]
         mid = np.array([(w.chainage_start_m + w.chainage_end_m) / 2 for w in ws])
-        for row, (field, label) in enumerate((('sobol_first', 'Sobol first'),
-                                              ('sobol_total', 'Sobol total'),
-                                              ('delta', 'Borgonovo delta'))):
-            ax = axes[row, col]
+        first = np.clip(np.array([w.sobol_first for w in ws]), 0, 1)
+        ax = axes[0, col]
+        ax.stackplot(mid, *first.T, np.clip(1 - first.sum(axis=1), 0, 1),
+                     colors=[*colours, '0.85'], labels=[*names, 'interactions'], alpha=0.9)
+        ax.set_ylabel('Sobol first (stacked)')
+        ax.set_title(f'quantity of interest: {qoi}', fontsize=10)
+        for row, (field, label) in enumerate((('sobol_total', 'Sobol total'),
+                                              ('delta', 'Borgonovo delta')), start=1):
             values = np.array([getattr(w, field) for w in ws])
-            for j, name in enumerate(names):
-                ax.plot(mid, values[:, j], marker='.', ms=3, lw=0.9, label=name)
-            ax.set_ylim(-0.02, 1.02)
-            ax.set_ylabel(label)
+            for j in range(len(names)):
+                axes[row, col].plot(mid, values[:, j], color=colours[j], lw=0.9)
+            axes[row, col].set_ylabel(label)
+        for ax in axes[:, col]:
+            ax.set_ylim(0, 1.02)
             ax.grid(alpha=0.3)
-        axes[0, col].set_title(f'quantity of interest: {qoi}', fontsize=10)
         axes[-1, col].set_xlabel('window centre: chainage [m]')
-    axes[0, 0].legend(fontsize=8, ncol=len(names))
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc='outside upper center', ncol=len(labels), fontsize=9)
     return _save(fig, path)
 
 
@@ -205,7 +216,7 @@ def plot_health(path: Path, stamps_ns: np.ndarray, health: InputHealth) -> Path:
     grid = fig.add_gridspec(2, 2)
     ax_t = fig.add_subplot(grid[0, :])
     t = (np.asarray(stamps_ns) - np.min(stamps_ns)) * 1e-9
-    per_second = np.bincount(t.astype(np.int64))
+    per_second = np.bincount(t.astype(np.int64))[:max(int(t.max()), 1)]  # whole seconds
     ax_t.step(np.arange(per_second.size), per_second, where='post', color=LINE_COLOUR, lw=0.9,
               label='IMU samples per second')
     step = np.diff(stamps_ns) * 1e-6

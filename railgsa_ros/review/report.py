@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from railgsa_ros import __version__
-from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level
+from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level, describe_counts
 from railgsa_ros.review.limits import CLASS_UPPER_KMH, LEVELS, SOURCE, class_label, speed_class
 
 if TYPE_CHECKING:
@@ -82,9 +82,8 @@ def _summary(review: Review) -> str:
     worst = f'{run.u_m[k] * MM:+.2f} mm at {run.chainage_m[k]:.1f} m'
     if worst_level is not None:
         worst += f' (<span class={worst_level.level}>{worst_level.level}</span>)'
-    counts = count_by_level(review.exceedances)
-    exc = ', '.join(f'<span class={level}>{level} {sum(counts[level].values())}</span>'
-                    for level in reversed(LEVELS))
+    exc = '<br>'.join(f'<span class={level}>{level}</span> {text}'
+                      for level, text in describe_counts(review.exceedances).items())
     sd = review.sections.sd_m
     cards = [
         _card('run', f'{length / 1e3:.2f} km in {review.duration_s:.1f} s'),
@@ -92,7 +91,7 @@ def _summary(review: Review) -> str:
                         f'{np.min(v):.0f}-{np.max(v):.0f} (mean {np.mean(v):.0f})')
               + f' km/h; class {_speed_classes(run.speed_mps)}'),
         _card('worst defect', worst),
-        _card('exceedances (central)', exc),
+        _card('EN 13848-5 exceedances', exc),
         _card(f'SD per {review.sections.length_m:g} m',
               f'max {_mm(np.nanmax(sd)) if np.any(np.isfinite(sd)) else "-"} mm '
               f'over {np.sum(np.isfinite(sd))} sections'),
