@@ -400,3 +400,15 @@ def test_directory_of_split_files_without_metadata(tmp_path: Path) -> None:
     stream = read_imu(split)
     np.testing.assert_array_equal(stream.stamps_ns, np.r_[first.stamps_ns, second.stamps_ns])
     np.testing.assert_array_equal(stream.accel, np.r_[first.accel, second.accel])
+
+
+def test_write_run_in_chunks_equals_one_piece(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    run = make_run(1000)
+    whole = write_run(tmp_path / 'whole', run, 'sqlite3')
+    monkeypatch.setattr('railgsa_ros.bag.run.WRITE_CHUNK', 64)
+    chunked = write_run(tmp_path / 'chunked', run, 'sqlite3')
+    a, b = list(read_messages(whole)), list(read_messages(chunked))
+    assert [(t, s) for t, s, _ in a] == [(t, s) for t, s, _ in b]
+    assert [s for _, s, _ in b] == sorted(s for _, s, _ in b)
+    assert sum(topic == '/odom' for topic, _, _ in b) == 20

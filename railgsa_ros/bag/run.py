@@ -22,6 +22,7 @@ from railgsa_ros.bag.writer import BagWriter, Batch
 IMU_TOPIC = '/imu/data'
 ODOM_TOPIC = '/odom'
 TRUTH_TOPIC = '/track/irregularity_truth'
+WRITE_CHUNK = 50_000  # IMU samples serialised at a time: bounded memory for long runs
 
 
 def sample_indices(stamps_ns: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -113,6 +114,7 @@ def write_run(path: str | Path, run: Any, storage: str = 'mcap', compression: st
         topics = encoder.topics()
         for topic, msgtype, offered in topics.values():
             bag.add_topic(topic, msgtype, offered)
-        batches = encoder.encode(offset_ns=offset_ns)
-        bag.write_batches({topics[k][0]: batch for k, batch in batches.items()})
+        for start in range(0, len(encoder), WRITE_CHUNK):
+            batches = encoder.encode(start, start + WRITE_CHUNK, offset_ns)
+            bag.write_batches({topics[k][0]: batch for k, batch in batches.items()})
     return Path(path)
