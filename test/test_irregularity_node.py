@@ -182,6 +182,13 @@ def test_defaults_equal_config_file() -> None:
     assert params and all(defaults[k] == v for k, v in params.items()), params
 
 
+def test_docs_list_every_parameter() -> None:
+    from railgsa_ros.nodes.irregularity_node import SPECS
+
+    text = (REPO / 'docs' / 'nodes.md').read_text()
+    assert [s.name for s in SPECS if f'| `{s.name}` |' not in text] == []
+
+
 def test_parameter_changes_validated_and_applied_with_a_flush(run: Any, rig: Callable) -> None:
     from rclpy.parameter import Parameter
 
