@@ -295,6 +295,9 @@ def test_killing_the_uncertainty_node_leaves_irregularity_node_unaffected(
     listener.publish(msgs[:half], rate_hz=1000.0)
     assert wait_for(lambda: len(listener.band) > 0, 15.0), uncertainty.stop().stderr
     uncertainty.stop(signal.SIGKILL)
+    with listener.lock:
+        band = np.array([b[0] for b in listener.band], np.int64)
+    np.testing.assert_array_equal(band, stamps[:band.size])  # the irregularity stamps
     before = len(listener.irregularity)
     listener.publish(msgs[half:], rate_hz=1000.0)
     assert wait_for(lambda: len(listener.irregularity) >= before + len(msgs) - half, 20.0)
