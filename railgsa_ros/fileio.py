@@ -19,7 +19,8 @@ def atomic_output(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
     The temporary path lies in a hidden directory next to ``path`` (same file system, so the
     rename is atomic) and may become a file or a directory. On any exception nothing is left
     behind and an existing ``path`` is untouched. An existing ``path`` is an error unless
-    ``overwrite`` is true. Unwritable locations raise ConfigError naming ``path``.
+    ``overwrite`` is true. Unwritable locations and OSErrors inside the block (disk full) raise
+    ConfigError naming ``path``.
     """
     path = Path(path)
     if (path.exists() or path.is_symlink()) and not overwrite:
@@ -36,6 +37,8 @@ def atomic_output(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
         if not (tmp.exists() or tmp.is_symlink()):
             raise ConfigError(f'{path}: nothing was written')
         _commit(tmp, path, holder)
+    except OSError as exc:  # e.g. disk full while writing
+        raise ConfigError(f'{path}: cannot write ({exc.strerror or exc})') from None
     finally:
         shutil.rmtree(holder, ignore_errors=True)
 

@@ -288,7 +288,7 @@ def test_bag_writer_arbitrary_messages_and_general_reader(tmp_path: Path) -> Non
     assert [x[0] for x in read_messages(tmp_path / 'any', topics=['/v'])] == ['/v']
 
 
-def test_bag_writer_is_atomic(tmp_path: Path) -> None:
+def test_bag_writer_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     run = make_run(50)
     with pytest.raises(RuntimeError, match='boom'), BagWriter(tmp_path / 'b') as bag:
         bag.add_topic('/imu/data', IMU.msgtype)
@@ -305,6 +305,14 @@ def test_bag_writer_is_atomic(tmp_path: Path) -> None:
     parent_is_file = tmp_path / 'b' / 'metadata.yaml' / 'x'
     with pytest.raises(ConfigError, match=r'metadata\.yaml/x: cannot write'):
         write_run(parent_is_file, run)
+    def disk_full(*args: object) -> None:
+        raise OSError(28, 'No space left on device')
+
+    with monkeypatch.context() as m:
+        m.setattr('rosbags.rosbag2.Writer.write', disk_full)
+        with pytest.raises(ConfigError, match=r'c: cannot write \(No space left on device\)'):
+            write_run(tmp_path / 'c', run)
+    assert [p.name for p in tmp_path.iterdir()] == ['b']
     with pytest.raises(ConfigError, match='zstd needs the mcap storage'):
         BagWriter(tmp_path / 'c', 'sqlite3', 'zstd')
     with pytest.raises(ConfigError, match='storage'):
