@@ -244,6 +244,24 @@ def test_invalid_start_parameters_raise_config_error(ros_context: Any) -> None:
                              parameter_overrides=[Parameter(name, value=value)])
 
 
+def test_vehicle_file_replaces_the_vehicle_parameters(run: Any, rig: Callable,
+                                                     tmp_path: Path) -> None:
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.pipeline import InversionPipeline
+    from railgsa_ros.vehicle import VehicleParams
+
+    vehicle = {'m_s': 12000.0, 'm_us': 1300.0, 'k_s': 1.8e6, 'k_us': 1.6e8, 'c': 9.0e4}
+    path = tmp_path / 'vehicle.yaml'
+    path.write_text(yaml.safe_dump({'vehicle': vehicle}))
+    r = rig(vehicle_file=str(path), m_s=5000.0)
+    assert {n: r.node.get_parameter(n).value for n in vehicle} == vehicle
+    stamps, acc = run.stamps_ns[:2200] + T0_NS, run.accel[:2200, 2]
+    r.publish(imu_msgs(stamps, acc))
+    cfg = InversionConfig.from_mapping({k: v for k, v in PARAMS.items() if k != 'use_odom'})
+    ref = InversionPipeline(cfg, VehicleParams(**vehicle)).push(stamps, acc, 40.0)
+    np.testing.assert_array_equal(r.outputs(len(ref))[2], ref.u_m)
+
+
 @pytest.mark.parametrize(('case', 'reason'), [
     ('nan', 'rejected_nan'), ('inf', 'rejected_nan'), ('saturated', 'rejected_saturated'),
     ('huge', 'rejected_saturated'), ('out_of_order', 'rejected_out_of_order'),

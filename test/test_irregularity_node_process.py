@@ -65,6 +65,20 @@ def test_ten_seconds_at_1khz_without_loss_then_sigint(ros_context: Any, spin: Ca
     assert 'Traceback' not in result.stderr, result.stderr
 
 
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_signal_when_idle_exits_0_without_traceback(sig: int, ros_context: Any, spin: Callable,
+                                                    wait_for: Callable,
+                                                    start_node: Callable) -> None:
+    from rclpy.node import Node
+
+    proc = start_node(MODULE, ROS_ARGS)
+    probe = spin(Node('irregularity_signal_probe', context=ros_context))
+    assert wait_for(lambda: probe.count_publishers('track/irregularity') > 0, 90.0)
+    result = proc.stop(sig)
+    assert result.rc == 0, result.stderr
+    assert 'Traceback' not in result.stderr, result.stderr
+
+
 def test_invalid_parameter_exits_2_with_one_line(start_node: Callable) -> None:
     proc = start_node(MODULE, ['-p', 'band_order:=9'])
     proc.proc.wait(timeout=60.0)
