@@ -198,3 +198,23 @@ def test_summary_of_a_bag_without_imu_or_truth(tmp_path: Path) -> None:
     text = simulate.format_summary(tmp_path / 'other')
     assert re.search(r'/v\s+geometry_msgs/msg/Vector3Stamped\s+11\s+10\.0', text)
     assert 'duration 1.000 s' in text and 'accel' not in text and 'truth' not in text
+
+
+def test_atomic_output_replaces_or_keeps_the_old_output(tmp_path: Path) -> None:
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.fileio import atomic_output
+
+    target = tmp_path / 'result.txt'
+    target.write_text('old')
+    with pytest.raises(RuntimeError), atomic_output(target, overwrite=True) as tmp:
+        tmp.write_text('half')
+        raise RuntimeError
+    assert target.read_text() == 'old' and list(tmp_path.iterdir()) == [target]
+    with atomic_output(target, overwrite=True) as tmp:
+        tmp.mkdir()  # a file may become a directory (bags are directories)
+        (tmp / 'x').write_text('new')
+    assert (target / 'x').read_text() == 'new' and list(tmp_path.iterdir()) == [target]
+    with pytest.raises(ConfigError, match='nothing was written'), \
+            atomic_output(tmp_path / 'empty'):
+        pass
+    assert list(tmp_path.iterdir()) == [target]
