@@ -254,6 +254,44 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
                                rtol=0, atol=1e-12 * np.abs(ref.mean_m).max())
 
 
+def test_internal_error_is_counted_and_the_stream_rebuilt(run: Any, rig: Callable) -> None:
+    node, _ = rig()
+    msgs = imu_messages(run.stamps_ns[:100] + T0_NS, run.accel[:100, 2])
+    broken = node.stream
+
+    def fail(*_args: Any) -> None:
+        raise RuntimeError('injected')
+    broken.push = fail
+    assert node.process(msgs) is None
+    assert node.counters()['internal_error'] == 1 and node.stream is not broken
+    node.process(imu_messages(run.stamps_ns[100:3000] + T0_NS, run.accel[100:3000, 2]))
+    assert node.counters()['published'] > 0
+
+
+def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callable) -> None:
+    from nav_msgs.msg import Odometry
+
+    from railgsa_ros.uncertainty import UncertaintyStream
+
+    node, _ = rig(use_odom=True, method='kalman', band='none', qoi='')
+    stamps, acc = run.stamps_ns[:2000] + T0_NS, run.accel[:2000, 2]
+    odom = Odometry()
+    odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(int(stamps[-1]), NS)
+    odom.twist.twist.linear.x = 25.0
+    node._on_odom(odom)
+    msgs = imu_messages(stamps, acc)
+    for m in msgs:
+        m.linear_acceleration_covariance[0] = 0.0
+        m.linear_acceleration_covariance[8] = 4e-6
+    band = node.process(msgs)
+    config = node_config().with_(qoi='', inversion=node_config().inversion.with_(
+        method='kalman', band='none'))
+    ref = UncertaintyStream(config, noise_variance=4e-6).push(stamps, acc, 25.0).band
+    np.testing.assert_array_equal(band.stamps_ns, ref.stamps_ns)
+    np.testing.assert_allclose(band.mean_m, ref.mean_m, rtol=1e-12, atol=0)
+    assert node._speed == 25.0
+
+
 def test_invalid_start_parameters_raise_config_error(ros_context: Any, tmp_path: Any) -> None:
     from rclpy.parameter import Parameter
 
