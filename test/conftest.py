@@ -25,7 +25,17 @@ from typing import Any
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-HAVE_RCLPY = importlib.util.find_spec('rclpy') is not None
+
+
+def _have_rclpy() -> bool:
+    """Whether rclpy can be found (without importing it: that takes a second)."""
+    try:
+        return importlib.util.find_spec('rclpy') is not None
+    except (ImportError, ValueError):  # ValueError: sys.modules['rclpy'] is None
+        return False
+
+
+HAVE_RCLPY = _have_rclpy()
 _PORT_BASE = 32768
 
 
@@ -37,6 +47,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if 'ros' in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.fixture(scope='session')
+def have_rclpy() -> bool:
+    """Whether rclpy is installed (the ``ros`` extra)."""
+    return HAVE_RCLPY
 
 
 def _reserve_domain() -> tuple[int, socket.socket | None]:
