@@ -391,3 +391,41 @@ def test_sim_time_outputs_carry_imu_stamps(run: Any, rig: Callable) -> None:
     ref = offline(stamps, acc)
     got_t = r.outputs(len(ref))[0]
     np.testing.assert_array_equal(got_t, stamps[:len(ref)])
+
+
+def test_fuzzed_messages_never_raise_nor_publish_nan(ros_context: Any) -> None:
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Imu
+
+    from railgsa_ros.nodes.irregularity_node import IrregularityNode
+
+    overrides = {**PARAMS, 'method': 'feedback', 'band': 'none'}  # D = 0: every sample out
+    node = IrregularityNode(context=ros_context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in overrides.items()])
+    floats = st.floats(allow_nan=True, allow_infinity=True)
+    message = st.tuples(st.integers(-3, 2**31 - 1), st.integers(0, 2**32 - 1),
+                        st.sampled_from(['imu_link', '', 'base_link', 'imu_link ']),
+                        floats, st.sampled_from([-1.0, 0.0, float('nan'), 1e-4]), floats)
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(st.lists(message, min_size=1, max_size=12))
+    def check(rows: list[tuple]) -> None:
+        msgs = []
+        for sec, nsec, frame, z, cov0, cov8 in rows:
+            m = Imu()
+            m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id = sec, nsec, frame
+            m.linear_acceleration.z = z
+            m.linear_acceleration_covariance[0], m.linear_acceleration_covariance[8] = cov0, cov8
+            msgs.append(m)
+        out = node.process(msgs)
+        assert out is None or np.all(np.isfinite(out.u_m))
+
+    check()
+    totals = node.counters()
+    assert totals['received'] == sum(totals.get(k, 0) for k in (
+        'accepted', 'malformed', 'nan', 'saturated', 'out_of_order', 'duplicate',
+        'wrong_frame'))  # every message accounted for exactly once
+    assert totals.get('internal_error', 0) == 0 and totals.get('published', 0) > 0
+    node.destroy_node()
