@@ -102,7 +102,6 @@ class ImuSimNode(Node):
             self._timer.cancel()
             self.get_logger().info('run finished: all samples published')
 
-
     def _report(self, elapsed_s: float) -> Report:
         """Diagnostics: samples published in total and per second over the last period."""
         rate, self._counted = (self.published - self._counted) / elapsed_s, self.published
