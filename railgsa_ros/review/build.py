@@ -86,7 +86,9 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     timings: dict[str, float] = {}
     start = time.perf_counter()
     tick('reading', 0.0)
+    limits = en13848_limits(options.config.inversion.band, options.limit_end)
     stream = read_imu(options.bag, options.imu_topic, options.odom_topic)
+    truth = load_truth(options.truth) if options.truth is not None else None
     timings['read'] = time.perf_counter() - start
     imu = stamp_stats(stream.stamps_ns, options.config.inversion.gap_factor)
     if not np.isfinite(imu.rate_hz):
@@ -103,15 +105,14 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     inv = cfg.inversion
     health = input_health(stream.stamps_ns, stream.odom_stamps_ns, stream.speed_mps,
                           run.counters, inv.gap_factor, stream.stamp_source)
-    limits = en13848_limits(inv.band, options.limit_end)
     band = run.band
     exceedances = find_exceedances(run.chainage_m, run.u_m, run.speed_mps, run.stamps_ns, limits,
                                    None if band is None else band.lower_m,
                                    None if band is None else band.upper_m)
     sections = section_sd(run.chainage_m, run.u_m, run.speed_mps, options.section_m)
     comparison = truth_sections = None
-    if options.truth is not None:
-        truth = load_truth(options.truth, int(run.stamps_ns[0]), float(run.chainage_m[0]))
+    if truth is not None:
+        truth = truth.aligned(int(run.stamps_ns[0]), float(run.chainage_m[0]))
         comparison = compare(run.chainage_m, run.u_m, truth, inv.band)
         truth_sections = section_sd(comparison.x_m, comparison.truth_m, None, options.section_m,
                                     max_step_m=2 * DX_M)

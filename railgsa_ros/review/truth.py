@@ -27,14 +27,24 @@ DEFECT_M = 10.0  # window length around the largest truth defect for the peak er
 
 @dataclass(frozen=True)
 class Truth:
-    """Irregularity u_m (N,) at increasing chainage_m (N,) on the review's chainage axis."""
+    """Irregularity u_m (N,) at increasing chainage_m (N,), with the stamps (N,) ns of a truth
+    bag (None for a CSV)."""
 
     source: Path
     chainage_m: np.ndarray
     u_m: np.ndarray
+    stamps_ns: np.ndarray | None = None
+
+    def aligned(self, run_stamp_ns: int, run_chainage_m: float) -> Truth:
+        """On the run's chainage axis: a bag's chainage shifted so that its value at the run's
+        stamp ``run_stamp_ns`` is ``run_chainage_m``; a CSV as it is."""
+        if self.stamps_ns is None:
+            return self
+        offset = float(np.interp(run_stamp_ns, self.stamps_ns, self.chainage_m)) - run_chainage_m
+        return Truth(self.source, self.chainage_m - offset, self.u_m, self.stamps_ns)
 
 
-def load_truth(path: str | Path, run_stamp_ns: int, run_chainage_m: float) -> Truth:
+def load_truth(path: str | Path) -> Truth:
     """Read a truth bag or CSV (see the module docstring); InputError naming the file when it is
     missing, unreadable, empty or not increasing in chainage."""
     path = Path(path)
@@ -52,8 +62,7 @@ def load_truth(path: str | Path, run_stamp_ns: int, run_chainage_m: float) -> Tr
     if not np.all(np.isfinite(x) & np.isfinite(u)) or np.any(np.diff(x) <= 0):
         raise InputError(f'{path}: {TRUTH_TOPIC} chainage (point.x) must be finite and '
                          'increase with the stamps')
-    offset = float(np.interp(run_stamp_ns, stamps, x)) - run_chainage_m
-    return Truth(path, x - offset, u)
+    return Truth(path, x, u, stamps)
 
 
 @dataclass(frozen=True)
