@@ -9,6 +9,7 @@ OUT ?= out/demo
 .PHONY: demo test lint bench clean
 
 $(VENV)/.installed: setup.py setup.cfg package.xml pyproject.toml
+	$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || { echo "Python 3.11 or newer is needed (PYTHON=$(PYTHON))"; exit 1; }
 	$(PYTHON) -m venv $(VENV) || { echo "python3 -m venv failed: install python3-venv (apt-get install python3-venv)"; exit 1; }
 	$(PY) -m pip install -q --upgrade pip 'setuptools<80' wheel
 	$(PY) -m pip install -q -e '.[ros,test]'
