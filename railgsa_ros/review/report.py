@@ -89,7 +89,7 @@ def _summary(review: Review) -> str:
         _card('run', f'{length / 1e3:.2f} km in {review.duration_s:.1f} s'),
         _card('speed', (f'{np.min(v):.0f}' if np.ptp(v) < 0.5 else
                         f'{np.min(v):.0f}-{np.max(v):.0f} (mean {np.mean(v):.0f})')
-              + f' km/h; class {_speed_classes(run.speed_mps)}'),
+              + f' km/h; class {escape(_speed_classes(run.speed_mps))}'),
         _card('worst defect', worst),
         _card('EN 13848-5 exceedances', exc),
         _card(f'SD per {review.sections.length_m:g} m',
