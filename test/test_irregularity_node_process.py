@@ -18,6 +18,7 @@ MODULE = 'railgsa_ros.nodes.irregularity_node'
 ROS_ARGS = [a for k, v in PARAMS.items() for a in ('-p', f'{k}:={str(v).lower()}')]
 
 
+@pytest.mark.slow
 def test_ten_seconds_at_1khz_without_loss_then_sigint(ros_context: Any, spin: Callable,
                                                        wait_for: Callable,
                                                        start_node: Callable) -> None:

@@ -62,8 +62,9 @@ from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 NODE_NAME = 'irregularity_node'
 OUTPUT_FRAME = 'track'
 SPECS = INVERSION_SPECS + VEHICLE_SPECS + NODE_SPECS
-#: parameters whose change rebuilds the pipeline (flush, then a clean start)
-MODEL_PARAMS = frozenset(s.name for s in INVERSION_SPECS + VEHICLE_SPECS)
+#: parameters whose change rebuilds the pipeline (flush, then a clean start); speed_mps is not
+#: one: the node passes the speed with every batch, so a new fallback speed applies at once
+MODEL_PARAMS = frozenset(s.name for s in INVERSION_SPECS + VEHICLE_SPECS) - {'speed_mps'}
 
 
 def build_model(values: Mapping[str, Any], noise_variance: float | None = None
