@@ -169,60 +169,78 @@ def test_cli_writes_the_report_and_draws_progress_only_when_asked(simulated, tmp
     assert '\rprocessing [' in capsys.readouterr().err
 
 
-def _corrupt(tmp_path: Path) -> Path:
-    path = tmp_path / 'corrupt.mcap'
-    path.write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 4)
+def _one_second(tmp_path: Path, name: str, keys: tuple[str, ...], nan: bool = False) -> Path:
+    """A 1 s bag of the topics ``keys``, every acceleration NaN when ``nan``."""
+    run = run_scenario('german-low', SPEED, 1.0, 1000.0, 'ideal', 3)
+    if nan:
+        run = replace(run, accel=np.full_like(run.accel, np.nan))
+    return _bag_with(tmp_path / name, run, keys)
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text, encoding='utf-8')
     return path
 
 
-@pytest.mark.parametrize(('case', 'message'), [
-    ('missing bag', 'no such bag'),
-    ('corrupt bag', 'unreadable bag'),
-    ('no imu topic', 'no topic /imu/other'),
-    ('bad truth csv', 'expected the header x_m,u_m'),
-    ('truth without topic', 'no topic /track/irregularity_truth'),
-    ('bad params', 'method'),
-])
+# case -> (error message, builder (tmp_path, simulated bag) -> (the file to name, extra args))
+BAD_INPUT = {
+    'missing bag': ('no such bag', lambda tmp, bag: (tmp / 'absent', [])),
+    'corrupt bag': ('unreadable bag', lambda tmp, bag: (
+        _write(tmp / 'corrupt.mcap', '\x89MCAP0\r\n' + 'garbage' * 100), [])),
+    'empty bag': ('has no messages', lambda tmp, bag: (_bag_with(
+        tmp / 'empty', run_scenario('german-low', SPEED, 1.0, 1000.0, 'ideal', 3), ('imu',), 0),
+        [])),
+    'all samples NaN': ('no usable IMU sample', lambda tmp, bag: (
+        _one_second(tmp, 'nan', ('imu', 'odom'), nan=True), [])),
+    'no imu topic': ('no topic /imu/other', lambda tmp, bag: (bag, ['--imu-topic', '/imu/other'])),
+    'bad truth csv': ('expected the header x_m,u_m', lambda tmp, bag: (
+        _write(tmp / 'truth.csv', 'x,u\n0,0\n1,0\n'), ['--truth'])),
+    'truth without topic': ('no topic /track/irregularity_truth', lambda tmp, bag: (
+        _one_second(tmp, 'no_truth', ('imu', 'odom')), ['--truth'])),
+    'bad params': ('method', lambda tmp, bag: (_write(
+        tmp / 'params.yaml', 'uncertainty_node:\n  ros__parameters:\n    method: magic\n'),
+        ['--params'])),
+}
+
+
+@pytest.mark.parametrize('case', list(BAD_INPUT))
 def test_bad_input_exits_2_naming_the_file_and_writes_nothing(simulated, tmp_path: Path,
-                                                              capsys, case: str,
-                                                              message: str) -> None:
+                                                              capsys, case: str) -> None:
     bag, _ = simulated
-    named = {'missing bag': tmp_path / 'absent', 'corrupt bag': _corrupt(tmp_path)}
-    args = ['review', str(named.get(case, bag)), '--out', str(tmp_path / 'out'),
-            '--no-uncertainty']
-    if case == 'no imu topic':
-        args += ['--imu-topic', '/imu/other']
-        named[case] = bag
-    if case == 'bad truth csv':
-        named[case] = tmp_path / 'truth.csv'
-        named[case].write_text('x,u\n0,0\n1,0\n', encoding='utf-8')
-        args += ['--truth', str(named[case])]
-    if case == 'truth without topic':
-        named[case] = _no_truth_bag(tmp_path)
-        args += ['--truth', str(named[case])]
-    if case == 'bad params':
-        named[case] = tmp_path / 'params.yaml'
-        named[case].write_text('uncertainty_node:\n  ros__parameters:\n    method: magic\n',
-                               encoding='utf-8')
-        args += ['--params', str(named[case])]
+    message, build = BAD_INPUT[case]
+    named, extra = build(tmp_path, bag)
+    is_bag = not extra or extra[0] == '--imu-topic'
+    args = ['review', str(named if is_bag else bag), '--out', str(tmp_path / 'out'),
+            '--no-uncertainty', *extra, *([] if is_bag else [str(named)])]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err.startswith('error: ') and err.count('\n') == 1
-    assert str(named[case]) in err and message in err
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(('out', '.out'))) == []
+    assert str(named) in err and message in err
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(('out', '.out'))]
 
 
-def _no_truth_bag(tmp_path: Path) -> Path:
-    """A bag with IMU and odometry but no truth topic."""
+def _bag_with(path: Path, run: object, keys: tuple[str, ...], count: int | None = None) -> Path:
+    """A bag with only the topics ``keys`` ('imu', 'odom', 'truth') of a run, and only its first
+    ``count`` IMU samples (None: all)."""
     from railgsa_ros.bag import BagWriter, RunEncoder
 
-    run = run_scenario('german-low', SPEED, 1.0, 1000.0, 'ideal', 3)
     encoder = RunEncoder(run)
-    path = tmp_path / 'no_truth'
     with BagWriter(path, 'mcap') as writer:
         topics = encoder.topics()
-        for key in ('imu', 'odom'):
+        for key in keys:
             writer.add_topic(*topics[key])
-        batches = encoder.encode()
-        writer.write_batches({topics[k][0]: batches[k] for k in ('imu', 'odom')})
+        batches = encoder.encode(0, count)
+        writer.write_batches({topics[k][0]: batches[k] for k in keys})
     return path
+
+
+def test_without_odometry_the_configured_speed_is_used(tmp_path: Path) -> None:
+    run = run_scenario('german-low', 25.0, 12.0, 1000.0, 'ideal', 4)
+    bag = _bag_with(tmp_path / 'imu_only', run, ('imu',))
+    config = UncertaintyConfig().with_(inversion=UncertaintyConfig().inversion.with_(
+        speed_mps=25.0))
+    review = build_review(ReviewOptions(bag, config))
+    assert review.health.odom is None
+    assert np.all(review.run.speed_mps == 25.0)
+    assert review.run.chainage_m[-1] == pytest.approx(run.chainage_m[-1] - run.chainage_m[0],
+                                                      abs=0.1)
