@@ -32,12 +32,8 @@ def run(args: argparse.Namespace) -> int:
     """Record; 0 when finished or interrupted (RailGsaError -> exit 2 in the caller)."""
     stop = threading.Event()  # a signal during the imports below stops cleanly too
     with stop_on_signals(stop):
-        from rclpy.parameter import Parameter
-
         from railgsa_ros.nodes import recorder
 
         values = {'out': args.out, 'duration': args.duration, 'split': args.split,
-                  'compress': args.compress}
-        params = [Parameter(k, value=v) for k, v in values.items()]
-        params.append(Parameter('topics', Parameter.Type.STRING_ARRAY, args.topics))
-        return recorder.run(args=[], parameters=params, stop=stop)
+                  'compress': args.compress, 'topics': args.topics}
+        return recorder.run(args=[], parameters=values, stop=stop)

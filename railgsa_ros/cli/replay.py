@@ -41,14 +41,10 @@ def run(args: argparse.Namespace) -> int:
     """Play the bag; 0 when done or interrupted (RailGsaError -> exit 2 in the caller)."""
     stop = threading.Event()  # a signal during the imports below stops cleanly too
     with stop_on_signals(stop):
-        from rclpy.parameter import Parameter
-
         from railgsa_ros.nodes import bag_replay_node
 
         values = {'bag_path': args.bag, 'rate': args.rate, 'loop': args.loop,
                   'start_offset': args.start, 'duration': args.duration, 'clock_hz': args.clock,
                   'wait_for_subscribers': args.wait_for_subscribers}
-        params = [Parameter(k, value=v) for k, v in values.items()]
-        params += [Parameter(k, Parameter.Type.STRING_ARRAY, v)
-                   for k, v in (('topics', args.topics), ('remaps', args.remap)) if v]
-        return bag_replay_node.run(args=[], parameters=params, stop=stop)
+        values.update({k: v for k, v in (('topics', args.topics), ('remaps', args.remap)) if v})
+        return bag_replay_node.run(args=[], parameters=values, stop=stop)

@@ -1,1 +1,17 @@
 """ROS 2 nodes (thin adapters over the core) and the helpers they share."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+
+def parameter_overrides(values: Mapping[str, Any]) -> list:
+    """rclpy Parameters from plain values (lists become string arrays), for callers without ROS.
+
+    The CLI passes plain values so that only ``railgsa_ros.nodes`` imports rclpy.
+    """
+    from rclpy.parameter import Parameter
+
+    return [Parameter(k, Parameter.Type.STRING_ARRAY, list(v)) if isinstance(v, (list, tuple))
+            else Parameter(k, value=v) for k, v in values.items()]

@@ -11,6 +11,7 @@ ROS installation cannot import are skipped with a warning. The node exits when t
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 import importlib
 import sys
 import threading
@@ -27,6 +28,7 @@ from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from railgsa_ros.errors import InputError, RailGsaError
+from railgsa_ros.nodes import parameter_overrides
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.playback.pacing import Pacer
 from railgsa_ros.playback.qos import QosChoice, choose_qos
@@ -194,7 +196,7 @@ class BagReplayNode(Node):
         super().destroy_node()
 
 
-def run(args: list[str] | None = None, parameters: list[Parameter] | None = None,
+def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = None,
         stop: threading.Event | None = None) -> int:
     """Replay with ROS ``args`` and parameter overrides; 0 when done or stopped by SIGINT,
     SIGTERM or ``stop``. RailGsaError propagates (the caller prints it and exits 2).
@@ -204,7 +206,7 @@ def run(args: list[str] | None = None, parameters: list[Parameter] | None = None
         init(args)
         node = None
         try:
-            node = BagReplayNode(stop, parameter_overrides=parameters or [])
+            node = BagReplayNode(stop, parameter_overrides=parameter_overrides(parameters or {}))
             node.play()
         except ExternalShutdownException:
             pass

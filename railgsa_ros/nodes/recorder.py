@@ -10,6 +10,7 @@ SIGINT/SIGTERM finish the bag (exit 0); a write error keeps the finished files r
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import partial
 import sys
 import threading
@@ -31,6 +32,7 @@ from rosbags.interfaces import (
 )
 
 from railgsa_ros.errors import ConfigError, RailGsaError
+from railgsa_ros.nodes import parameter_overrides
 from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import output_qos, sensor_qos
@@ -135,7 +137,7 @@ class RecorderNode(Node):
         final_note(self, f'recorded {self.bag.message_count} messages into {self.bag.path}')
 
 
-def run(args: list[str] | None = None, parameters: list[Parameter] | None = None,
+def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = None,
         stop: threading.Event | None = None) -> int:
     """Record until ``duration``, SIGINT/SIGTERM or ``stop``; 0 with the bag closed and readable.
 
@@ -148,7 +150,7 @@ def run(args: list[str] | None = None, parameters: list[Parameter] | None = None
         init(args)
         node = None
         try:
-            node = RecorderNode(parameter_overrides=parameters or [])
+            node = RecorderNode(parameter_overrides=parameter_overrides(parameters or {}))
             executor = SingleThreadedExecutor()
             executor.add_node(node)
             while not (stop.is_set() or node.done) and rclpy.ok():
