@@ -6,9 +6,9 @@ A simulated run (German low track with two dips, ADXL355 at ``--rate``, ``--spee
 - review, nominal only: ``build_review`` + ``write_review`` with ``--no-uncertainty``;
 - review, full: the same with the uncertainty node's default configuration (band, windows,
   histogram), i.e. ``railgsa review BAG --out DIR``.
-Each row gives seconds, times real time (run duration / wall time, the goal is >= 100x for a
-1 kHz bag) and the ratio to the baseline, then the review's own stage times (read, stream,
-analyse, figures).
+BLAS threads are limited to one before numpy is imported. Each row gives seconds, times real time
+(run duration / wall time, the goal is >= 100x for a 1 kHz bag) and the ratio to the baseline,
+then the review's own stage times (read, stream, analyse, figures).
 
 Usage: python benchmarks/bench_review_speed.py [--seconds 600] [--rate 1000] [--speed 30]
 """
@@ -21,18 +21,16 @@ from pathlib import Path
 import tempfile
 import time
 
-from railgsa_ros.bag import read_imu, write_run
-from railgsa_ros.review.build import ReviewOptions, build_review, write_review
-from railgsa_ros.scenario import run_scenario
-from railgsa_ros.uncertainty import UncertaintyConfig
-from railgsa_ros.uq.uncertainty_file import table3
-
 DEFECTS = 'dip@2000:len=6:depth=0.015,dip@5000:len=8:depth=0.02'
 START_NS = 1_700_000_000 * 10**9  # realistic positive stamps (jitter may go below 0 at t = 0)
 
 
 def review_once(bag: Path, out: Path, uncertain: bool) -> tuple[float, dict[str, float]]:
     """Wall time (s) of one review written to ``out``, and its stage times."""
+    from railgsa_ros.review.build import ReviewOptions, build_review, write_review
+    from railgsa_ros.uncertainty import UncertaintyConfig
+    from railgsa_ros.uq.uncertainty_file import table3
+
     start = time.perf_counter()
     review = build_review(ReviewOptions(bag, UncertaintyConfig(),
                                         dists=table3() if uncertain else None))
@@ -48,6 +46,11 @@ def main() -> None:
     args = parser.parse_args()
     if hasattr(os, 'sched_setaffinity'):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    for name in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+        os.environ[name] = '1'  # one core: set before numpy is imported (below)
+    from railgsa_ros.bag import read_imu, write_run
+    from railgsa_ros.scenario import run_scenario
+
     with tempfile.TemporaryDirectory(prefix='bench_review_') as tmp:
         bag = write_run(Path(tmp) / 'run', run_scenario('german-low', args.speed, args.seconds,
                                                          args.rate, 'adxl355', 0,
