@@ -82,3 +82,51 @@ def test_errors_name_the_file(bag, tmp_path, capsys):
     assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), '--imu-topic',
                  '/nope']) == 2
     assert not (tmp_path / 'x.csv').exists()
+
+
+def test_bands_are_the_uncertainty_stream(bag, tmp_path):
+    """--bands columns equal uncertainty_node's streaming code (pushed in odd chunks) on the
+    same samples, and the band brackets its own PCE mean."""
+    from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream
+    from railgsa_ros.uncertainty.stream import Band
+
+    path, _ = bag
+    out = tmp_path / 'u.csv'
+    assert main(['invert', str(path), '--csv', str(out), '--bands']) == 0
+    lines, data = read_csv(out)
+    assert lines[0] == 't_s,chainage_m,u_m,lower_m,mean_m,upper_m'
+    import argparse
+
+    from railgsa_ros.cli import invert
+
+    parser = argparse.ArgumentParser()
+    invert.register(parser.add_subparsers())
+    inp = invert.load_inputs(parser.parse_args(['invert', str(path), '--csv', str(out)]))
+    live = UncertaintyStream(UncertaintyConfig(inversion=inp.config, qoi=''), inp.vehicle, None,
+                             inp.noise_variance)
+    parts, lo = [], 0
+    for size in np.random.default_rng(1).integers(1, 900, inp.stamps_ns.size):
+        sl = slice(lo, lo + int(size))
+        parts.append(live.push(inp.stamps_ns[sl], inp.acc_z[sl], inp.speed_mps[sl],
+                               inp.frame_ids[sl]).band)
+        lo += int(size)
+        if lo >= inp.stamps_ns.size:
+            break
+    ref = Band.concat([*parts, live.flush().band])
+    stamps = np.array([int(line.split(',')[0].replace('.', '')) for line in lines[1:]])
+    assert np.array_equal(stamps, ref.stamps_ns)
+    for col, want in zip(data[:, 3:].T, (ref.lower_m, ref.mean_m, ref.upper_m), strict=True):
+        np.testing.assert_allclose(col, want, rtol=1e-8, atol=1e-12)
+    assert np.all(data[:, 3] <= data[:, 4]) and np.all(data[:, 4] <= data[:, 5])
+
+
+def test_bands_in_the_output_bag(bag, tmp_path):
+    path, _ = bag
+    out = tmp_path / 'nodes'
+    assert main(['invert', str(path), '--out', str(out), '--bands']) == 0
+    with AnyReader([out]) as reader:
+        stamps = {c.topic: [] for c in reader.connections}
+        for conn, t, _ in reader.messages(connections=reader.connections):
+            stamps[conn.topic].append(t)
+    assert set(stamps) == {'/track/irregularity', '/track/irregularity_band'}
+    assert stamps['/track/irregularity'] == stamps['/track/irregularity_band']

@@ -4,16 +4,24 @@ Runs the node's streaming ``InversionPipeline`` over the bag in chunks and write
 ``t_s,chainage_m,u_m`` (t_s = IMU stamp in s) for every accepted sample, or with ``--out`` the
 node's ``/track/irregularity`` topic (geometry_msgs/PointStamped, frame ``track``, point.x =
 chainage, point.z = irregularity, header stamp = log time = IMU stamp) to a rosbag2 bag.
+``--bands`` adds ``lower_m,mean_m,upper_m`` (uncertainty_node's ``/track/irregularity_band``)
+computed by the node's streaming code (``railgsa_ros.uncertainty.offline_bands``).
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 CHUNK = 65536  # IMU samples per pipeline call
 OUT_TOPIC = '/track/irregularity'
+BAND_TOPIC = '/track/irregularity_band'
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,6 +48,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--vehicle', metavar='FILE', help='vehicle YAML (default the paper Table 1)')
     p.add_argument('--speed', type=float, metavar='MPS',
                    help='constant speed in m/s, overriding odometry')
+    p.add_argument('--bands', action='store_true',
+                   help='add the uncertainty band lower_m,mean_m,upper_m (uncertainty_node)')
+    p.add_argument('--uncertainty', metavar='FILE',
+                   help='uncertain parameters for --bands (default the paper Table 3)')
+    p.add_argument('--uncertainty-params', metavar='FILE',
+                   help='ROS params file with uncertainty_node: ros__parameters: (rule, order, '
+                   'quantiles) for --bands')
     p.add_argument('--overwrite', action='store_true', help='replace an existing output')
     p.set_defaults(func=run)
 
@@ -63,13 +78,26 @@ def build_config(args: argparse.Namespace, rate_hz: float) -> object:
     return InversionConfig.from_mapping(params, source=args.params or 'command line')
 
 
-def invert_bag(args: argparse.Namespace) -> tuple[object, object]:
-    """Run the pipeline over the bag; returns (Output of every accepted sample, pipeline)."""
+@dataclass(frozen=True)
+class Inputs:
+    """What the bag and the options give the pipeline: per-sample arrays and the settings."""
+
+    stamps_ns: np.ndarray
+    acc_z: np.ndarray
+    speed_mps: np.ndarray
+    frame_ids: np.ndarray
+    config: object
+    vehicle: object
+    noise_variance: float | None
+
+
+def load_inputs(args: argparse.Namespace) -> Inputs:
+    """Read the bag and build the pipeline settings (InputError/ConfigError naming the file)."""
     import numpy as np
 
     from railgsa_ros.bag import read_imu
     from railgsa_ros.errors import ConfigError, InputError
-    from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+    from railgsa_ros.inverse.pipeline import vertical
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     if args.speed is not None and not (np.isfinite(args.speed) and args.speed > 0):
@@ -84,56 +112,100 @@ def invert_bag(args: argparse.Namespace) -> tuple[object, object]:
     vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
     variance = stream.accel_variance(cfg.noise_std_mps2 ** 2)[:, 'xyz'.index(cfg.accel_axis[-1])]
     known = variance[np.isfinite(variance)]
-    pipe = InversionPipeline(cfg, vehicle, float(np.median(known)) if known.size else None)
     if args.speed is not None or stream.odom_stamps_ns.size == 0:
         speed = np.full(stamps.size, cfg.speed_mps)
     else:  # odometry held: the newest odometry sample at or before each IMU stamp
         idx = np.searchsorted(stream.odom_stamps_ns, stamps, side='right') - 1
         speed = stream.speed_mps[np.clip(idx, 0, None)]
-    acc = vertical(stream.accel, cfg.accel_axis)
-    outs = [pipe.push(stamps[i:i + CHUNK], acc[i:i + CHUNK], speed[i:i + CHUNK],
-                      stream.frame_ids[i:i + CHUNK]) for i in range(0, stamps.size, CHUNK)]
+    return Inputs(stamps, vertical(stream.accel, cfg.accel_axis), speed, stream.frame_ids, cfg,
+                  vehicle, float(np.median(known)) if known.size else None)
+
+
+def invert_bag(args: argparse.Namespace) -> tuple[object, object, Inputs]:
+    """Run the pipeline over the bag: (Output of every accepted sample, pipeline, inputs)."""
+    import numpy as np
+
+    from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+
+    inp = load_inputs(args)
+    pipe = InversionPipeline(inp.config, inp.vehicle, inp.noise_variance)
+    outs = [pipe.push(inp.stamps_ns[i:i + CHUNK], inp.acc_z[i:i + CHUNK],
+                      inp.speed_mps[i:i + CHUNK], inp.frame_ids[i:i + CHUNK])
+            for i in range(0, inp.stamps_ns.size, CHUNK)]
     outs.append(pipe.flush())
     return Output(*(np.concatenate([getattr(o, f) for o in outs]) for f in
-                    ('stamps_ns', 'chainage_m', 'u_m'))), pipe
+                    ('stamps_ns', 'chainage_m', 'u_m'))), pipe, inp
 
 
-def write_csv(path: str | Path, out: object, overwrite: bool) -> None:
-    """``t_s,chainage_m,u_m`` with the stamp printed exactly from its nanoseconds."""
+def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
+    """uncertainty_node's band for the same samples; its stamps equal the pipeline output's."""
+    import numpy as np
+
+    from railgsa_ros.errors import InputError
+    from railgsa_ros.uncertainty import UncertaintyConfig, load_config, offline_bands
+    from railgsa_ros.uq.uncertainty_file import load_uncertainty
+
+    base = load_config(args.uncertainty_params) if args.uncertainty_params else UncertaintyConfig()
+    band = offline_bands(inp.stamps_ns, inp.acc_z, inp.speed_mps, inp.frame_ids,
+                         config=base.with_(inversion=inp.config), vehicle=inp.vehicle,
+                         dists=load_uncertainty(args.uncertainty) if args.uncertainty else None,
+                         noise_variance=inp.noise_variance)
+    if not np.array_equal(band.stamps_ns, out.stamps_ns):
+        raise InputError(f'{args.bag}: band and irregularity stamps differ (internal error)')
+    return band
+
+
+def write_csv(path: str | Path, out: object, band: object | None, overwrite: bool) -> None:
+    """``t_s,chainage_m,u_m[,lower_m,mean_m,upper_m]``, stamps printed exactly from their ns."""
     import numpy as np
 
     from railgsa_ros.fileio import atomic_output
 
     sec, nsec = np.divmod(out.stamps_ns, 1_000_000_000)
     t = np.char.add(np.char.add(sec.astype(str), '.'), np.char.zfill(nsec.astype(str), 9))
-    body = [f'{a},{c:.4f},{u:.9e}' for a, c, u in zip(t, out.chainage_m, out.u_m, strict=True)]
+    header = 't_s,chainage_m,u_m'
+    values = [out.chainage_m, out.u_m]
+    if band is not None:
+        header += ',lower_m,mean_m,upper_m'
+        values += [band.lower_m, band.mean_m, band.upper_m]
+    cols = np.column_stack(values)
+    fmt = ','.join(['%.4f'] + ['%.9e'] * (cols.shape[1] - 1))
+    body = np.char.add(np.char.add(t, ','), np.array([fmt % tuple(r) for r in cols]))
     with atomic_output(path, overwrite) as tmp:
-        tmp.write_text('\n'.join(['t_s,chainage_m,u_m', *body]) + '\n', encoding='utf-8')
+        tmp.write_text('\n'.join([header, *body]) + '\n', encoding='utf-8')
 
 
-def write_bag(path: str | Path, out: object, overwrite: bool) -> None:
-    """``/track/irregularity`` PointStamped messages, log time = header stamp = IMU stamp."""
+def write_bag(path: str | Path, out: object, band: object | None, overwrite: bool) -> None:
+    """The nodes' topics, log time = header stamp = IMU stamp: ``/track/irregularity``
+    (PointStamped: x chainage, z irregularity) and with a band ``/track/irregularity_band``
+    (Vector3Stamped: x lower, y mean, z upper)."""
     import numpy as np
 
     from railgsa_ros.bag import BagWriter
     from railgsa_ros.bag.cdr import encode
-    from railgsa_ros.bag.messages import POINT_STAMPED, history_depth, qos
+    from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED, history_depth, qos
 
     values = np.zeros((out.stamps_ns.size, 3))
     values[:, 0], values[:, 2] = out.chainage_m, out.u_m
+    topics = {OUT_TOPIC: (POINT_STAMPED, values)}
+    if band is not None:
+        topics[BAND_TOPIC] = (VECTOR3_STAMPED,
+                              np.column_stack([band.lower_m, band.mean_m, band.upper_m]))
     with BagWriter(path, 'mcap', overwrite=overwrite) as bag:
-        bag.add_topic(OUT_TOPIC, POINT_STAMPED.msgtype, qos(True, history_depth(1000.0)))
-        raws = encode(POINT_STAMPED, out.stamps_ns, ['track'], values)
-        bag.write_batches({OUT_TOPIC: (out.stamps_ns, raws)})
+        for topic, (layout, _) in topics.items():
+            bag.add_topic(topic, layout.msgtype, qos(True, history_depth(1000.0)))
+        bag.write_batches({topic: (out.stamps_ns, encode(layout, out.stamps_ns, ['track'], v))
+                           for topic, (layout, v) in topics.items()})
 
 
 def run(args: argparse.Namespace) -> int:
     """Invert the bag and write the result; prints a one-line summary to stderr."""
-    out, pipe = invert_bag(args)
+    out, pipe, inp = invert_bag(args)
+    band = bands_for(args, inp, out) if args.bands else None
     if args.csv:
-        write_csv(args.csv, out, args.overwrite)
+        write_csv(args.csv, out, band, args.overwrite)
     else:
-        write_bag(args.out, out, args.overwrite)
+        write_bag(args.out, out, band, args.overwrite)
     counts = ', '.join(f'{k} {v}' for k, v in sorted(pipe.counters.items()))
     print(f'{len(out)} samples ({pipe.config.method}, band {pipe.config.band}, delay '
           f'{pipe.delay_samples} samples); {counts}', file=sys.stderr)
