@@ -121,12 +121,15 @@ def _limits_section(review: Review, names: dict[str, str]) -> str:
     counts = count_by_level(review.exceedances)
     count_rows = [[level, *(str(counts[level][c]) for c in CONFIDENCES)]
                   for level in reversed(LEVELS)]
-    listed = sorted(review.exceedances, key=lambda e: e.start_m)
+    severe = sorted(review.exceedances, key=lambda e: (-e.severity,
+                                                       CONFIDENCES.index(e.confidence),
+                                                       -abs(e.peak_u_m)))
+    listed = sorted(severe[:MAX_ROWS], key=lambda e: e.start_m)  # the worst, in chainage order
     exc_rows = [[e.level, e.confidence, f'{e.start_m:.1f}', f'{e.end_m:.1f}', f'{e.peak_m:.1f}',
                  f'{e.peak_u_m * MM:+.2f}', f'{e.lower_m * MM:+.2f} / {e.upper_m * MM:+.2f}',
-                 f'{e.limit_m * MM:.0f}', f'{e.speed_kmh:.0f}'] for e in listed[:MAX_ROWS]]
-    more = (f'<p class=note>{len(listed) - MAX_ROWS} more not listed.</p>'
-            if len(listed) > MAX_ROWS else '')
+                 f'{e.limit_m * MM:.0f}', f'{e.speed_kmh:.0f}'] for e in listed]
+    more = (f'<p class=note>{len(severe) - MAX_ROWS} less severe ones not listed.</p>'
+            if len(severe) > MAX_ROWS else '')
     band_note = ('The confidence compares the uncertainty band with the limit: certain = the '
                  'whole band passes it, likely = the reconstruction passes it but the band '
                  'reaches below, possible = only the band\'s far edge passes a limit.')

@@ -77,7 +77,6 @@ class _Bank:
 
     def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
                  dists: Mapping[str, Distribution], noise_variance: float | None) -> None:
-        self.config = config
         self.design = build_design(config, vehicle, dists)
         self.pipeline = InversionPipeline(config.inversion, self.design.theta, noise_variance)
         self.windows = WindowAnalyzer(config, self.design)
