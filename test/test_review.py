@@ -4,6 +4,7 @@ exceedances of known dips, SD per section of known signals, stamp health, progre
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,10 +16,12 @@ from railgsa_ros.review.exceedances import (
     find_exceedances,
     magnitudes,
 )
+from railgsa_ros.review.figures import envelope
 from railgsa_ros.review.health import stamp_stats
 from railgsa_ros.review.limits import en13848_limits, speed_class
 from railgsa_ros.review.progress import Progress
 from railgsa_ros.review.sections import section_sd
+from railgsa_ros.review.truth import Truth
 from railgsa_ros.track import cosine_dip
 
 KMH = 1 / 3.6
@@ -177,3 +180,26 @@ def test_progress_draws_only_when_forced_or_on_a_terminal() -> None:
         text = stream.getvalue()
         assert text.count('\r') == 2 and text.endswith('100 %\n') and ' 30 %' in text
         assert '\rdone [' + '#' * 30 + ']' in text
+
+
+def test_envelope_keeps_every_extreme_of_a_long_signal() -> None:
+    x = np.arange(100_001) * 0.03
+    y = np.sin(x) * 1e-3
+    y[54_321] = 5e-3  # one sample spike: must survive the reduction
+    y[77_777] = np.nan  # missing samples do not hide their block
+    xe, lo, hi = envelope(x, y, bins=500)
+    assert 490 <= xe.size <= 500 and np.all(np.diff(xe) > 0)
+    assert np.nanmax(hi) == 5e-3 and np.nanmin(lo) == pytest.approx(np.nanmin(y))
+    assert xe[np.nanargmax(hi)] == pytest.approx(x[54_321], abs=x[-1] / 500)
+    short = envelope(x[:100], y[:100], bins=500)
+    assert all(np.array_equal(a, b) for a, b in zip(short, (x[:100], y[:100], y[:100]),
+                                                     strict=True))
+
+
+def test_a_truth_bag_is_shifted_onto_the_run_chainage() -> None:
+    stamps = np.arange(10, dtype=np.int64) * 10**8
+    truth = Truth(Path('t'), 1000.0 + np.arange(10.0), np.zeros(10), stamps)
+    moved = truth.aligned(run_stamp_ns=3 * 10**8 + 5 * 10**7, run_chainage_m=2.0)
+    assert moved.chainage_m[0] == pytest.approx(-1.5)  # 1003.5 m of the truth is 2 m of the run
+    csv = Truth(Path('t.csv'), np.arange(10.0), np.zeros(10))
+    assert csv.aligned(0, 5.0) is csv  # a CSV already counts from the run start
