@@ -244,7 +244,7 @@ def plot_health(path: Path, stamps_ns: np.ndarray, health: InputHealth) -> Path:
         ax_r.text(value, y, f' {value}', va='center', fontsize=8)
     ax_r.set_xlim(0, 1.2 * max(1, *counts.values()))
     ax_r.set_xlabel('samples / events')
-    ax_r.set_title('rejected by the sanitiser', fontsize=9)
+    ax_r.set_title('sanitiser: rejected samples by reason, gaps, resets', fontsize=9)
     return _save(fig, path)
 
 
