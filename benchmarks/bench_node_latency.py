@@ -189,11 +189,12 @@ def _latencies(stamps: np.ndarray, sent: np.ndarray, received: np.ndarray,
     return np.array(lat), int(np.count_nonzero(~got[:len(stamps) - delay]))
 
 
-def _band_delay(diag: dict[str, str]) -> int:
+def _band_delay(diag: dict[str, str]) -> int | None:
+    """The node's band delay D (samples) from its /diagnostics, None if it never reported."""
     for key, value in diag.items():
         if key.endswith('/band_delay_samples'):
             return int(value)
-    raise RuntimeError('irregularity_node published no band_delay_samples on /diagnostics')
+    return None
 
 
 def drive(args: argparse.Namespace) -> int:
@@ -231,6 +232,10 @@ def drive(args: argparse.Namespace) -> int:
         rec = np.load(Path(tmp) / 'receive.npz')
         diag = json.loads((Path(tmp) / 'diagnostics.json').read_text())
     delay = _band_delay(diag)
+    if delay is None:
+        print(f'irregularity_node published no /diagnostics (exit code {codes["node"]})',
+              file=sys.stderr)
+        return 1
     rows = {}
     for name, d in (('relay', 0), ('node', delay)):
         lat, lost = _latencies(pub['stamps'], pub['sent'], rec[name], d)
