@@ -247,9 +247,9 @@ class IrregularityNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until SIGINT/SIGTERM; exit code 0, or 2 with one line for bad parameters."""
-    rclpy.init(args=args)
     node = None
     try:
+        rclpy.init(args=args)
         node = IrregularityNode()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
