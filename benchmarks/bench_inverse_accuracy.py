@@ -7,6 +7,9 @@
     parameters, scored on distance in D1 (score.score: both signals reach the score in D1 once,
     100 m left out at each end): RMSE (target <= 0.3 mm), correlation (>= 0.95) and peak error
     on the 8 mm dip (<= 0.5 mm). Baseline: FFT of the whole record divided by G(j w), D1-limited.
+(c) The multirate band stage (default) against the single-rate FIR (``multirate: false``) on the
+    runs of (b): scores of both and the largest and RMS difference of the outputs (mm), both
+    samples of the same stamps, the first and last 100 m left out.
 
 Usage: python benchmarks/bench_inverse_accuracy.py [--length 800] [--seed 1]
 """
@@ -59,6 +62,15 @@ def row(name: str, speed: float, s, base_rmse: float) -> str:
             f'{s.peak_error * 1e3:8.4f} | {s.rmse / base_rmse:6.2f} | {"yes" if ok else "no":4} |')
 
 
+def difference(single: tuple[np.ndarray, np.ndarray], multi: tuple[np.ndarray, np.ndarray],
+               margin_m: float = 100.0) -> tuple[float, float]:
+    """Largest and RMS difference (m) of two reconstructions of the same samples."""
+    chain = single[0]
+    keep = (chain >= chain[0] + margin_m) & (chain <= chain[-1] - margin_m)
+    diff = multi[1][keep] - single[1][keep]
+    return float(np.max(np.abs(diff))), float(np.sqrt(np.mean(diff ** 2)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--length', type=float, default=800.0, help='track length, m')
@@ -70,16 +82,27 @@ def main() -> None:
     print('(b) ADXL355, German low + 8 mm dip / 3 mm joint / 0.3 mm weld, D1 on distance')
     print('| v m/s | method                 | RMSE mm | corr    | dip peak mm | / base | pass |')
     print('|---|---|---|---|---|---|---|')
+    rates = []
     for speed in (10.0, 20.0, 40.0):
         run = run_scenario('german-low', speed, args.length / speed, None, 'adxl355',
                            seed=args.seed, defects=DEFECTS)
         base = exact_inverse(run.stamps_ns, vertical(run.accel, 'z'), speed)
         b = score(run.chainage_m, base, run.chainage_m, run.truth_u_m, defect=DIP)
         for name, overrides in METHODS.items():
-            chain, u = reconstruct(run, overrides)
-            s = score(chain, u, run.chainage_m, run.truth_u_m, defect=DIP)
+            multi = reconstruct(run, overrides)
+            s = score(*multi, run.chainage_m, run.truth_u_m, defect=DIP)
             print(row(name, speed, s, b.rmse))
+            single = reconstruct(run, {**overrides, 'multirate': False})
+            s1 = score(*single, run.chainage_m, run.truth_u_m, defect=DIP)
+            rates.append((speed, name, s1.rmse, s.rmse, *difference(single, multi)))
         print(row('exact baseline (FFT)', speed, b, b.rmse))
+    print('\n(c) multirate band stage against the single-rate FIR, same runs')
+    print('| v m/s | method                 | RMSE single mm | RMSE multirate mm | '
+          'max diff mm | RMS diff mm |')
+    print('|---|---|---|---|---|---|')
+    for speed, name, rmse1, rmse, big, rms in rates:
+        print(f'| {speed:4.0f} | {name:<22} | {rmse1 * 1e3:8.4f} | {rmse * 1e3:8.4f} | '
+              f'{big * 1e3:9.5f} | {rms * 1e3:9.5f} |')
 
 
 if __name__ == '__main__':

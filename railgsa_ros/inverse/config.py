@@ -44,6 +44,10 @@ class InversionConfig:
     speed_mps: float = _p(20.0, 'speed used when no odometry is given, m/s', (0.0, 200.0))
     min_design_speed_mps: float = _p(10.0, 'band held at this speed below it; sets delay, m/s',
                                      (0.5, 200.0))
+    max_speed_mps: float = _p(70.0, 'band held at this speed above it; sets the multirate '
+                                    'decimation R, m/s', (0.5, 200.0))
+    multirate: bool = _p(True, 'run the band FIR at fs / R (anti-alias decimation, polyphase '
+                               'interpolation); single rate when false or R < 2')
     speed_tolerance: float = _p(0.005, 'relative speed change that triggers a filter redesign',
                                 (1e-4, 1.0))
     accel_axis: str = _p('z', 'IMU axis (with sign) pointing up in the car body', choices=AXES)
@@ -80,6 +84,9 @@ class InversionConfig:
         if self.method == 'spectral' and self.band_order < 2:
             raise ConfigError('band_order: the spectral method needs 2 or more: |BP|^2 / G falls '
                               'only as 1/f with order 1 (1/G grows as f), so no FIR fits it')
+        if self.max_speed_mps < self.min_design_speed_mps:
+            raise ConfigError(f'max_speed_mps: {self.max_speed_mps:g} is below '
+                              f'min_design_speed_mps ({self.min_design_speed_mps:g})')
         if self.smoother and self.method != 'kalman':
             raise ConfigError('smoother: the RTS smoother belongs to the kalman method')
 

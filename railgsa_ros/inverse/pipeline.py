@@ -11,9 +11,12 @@ Methods (all run a bank of P parameter sets):
   the marginally damped slow pole pair (+-j / sqrt(K)) and costs one shared FIR design.
 - ``kalman``: the steady-state Kalman filter (or, offline, the RTS smoother), then the band FIR.
 
-Band designs follow the speed at the output sample, are held at ``min_design_speed_mps`` below it
-and are swapped every ``switch_period`` samples when the speed moved by more than
-``speed_tolerance``; D is fixed by the design at the minimum speed (the longest impulse response).
+The band FIR runs at fs / R between an anti-alias decimator and a polyphase interpolator
+(``multirate.py``; R from ``rate_hz`` and ``max_speed_mps``, single rate when R < 2 or
+``multirate`` is false). Band designs follow the speed at the output sample, are held at
+``min_design_speed_mps`` below it and ``max_speed_mps`` above it, and are swapped every
+``switch_period`` samples when the speed moved by more than ``speed_tolerance``; D is fixed by the
+design at the minimum speed (the longest impulse response) plus the anti-alias delays.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.feedback import FeedbackInverse, Stability
 from railgsa_ros.inverse.kalman import KalmanInverse
+from railgsa_ros.inverse.multirate import MultirateFir, antialias_taps, decimation, rolloff
 from railgsa_ros.inverse.sanitize import Clean, InputSanitizer
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
@@ -64,11 +68,13 @@ def vertical(accel: np.ndarray, axis: str) -> np.ndarray:
     return sign * np.asarray(accel, dtype=float)[:, col]
 
 
-def taper(n: int, length: int) -> np.ndarray:
+def taper(n: np.ndarray, length: int) -> np.ndarray:
     """Raised-cosine ramp 0 -> 1 over ``length`` samples evaluated at sample indices n."""
-    if length <= 0:
-        return np.ones_like(n, dtype=float)
-    return np.where(n < length, 0.5 - 0.5 * np.cos(np.pi * np.minimum(n, length) / length), 1.0)
+    ramp = np.ones(np.shape(n))
+    if length > 0:  # the cosine only where it is needed: most samples lie past the ramp
+        head = n < length
+        ramp[head] = 0.5 - 0.5 * np.cos(np.pi * n[head] / length)
+    return ramp
 
 
 class _Meta:
@@ -124,32 +130,16 @@ class InversionPipeline:
                                         var, self.dt,
                                         cfg.speed_mps, cfg.speed_tolerance,
                                         cfg.min_design_speed_mps)
-        self._fir: PartitionedFir | None = None
+        self._fir: PartitionedFir | MultirateFir | None = None
         self.delay_samples = 0
+        self.decimation = 1
+        self.band_taps = 0
         self.truncation_error = 0.0
         self.switch_period = NO_BAND_SWITCH
         if cfg.band != 'none':
-            vmin = cfg.min_design_speed_mps
-            periods = DESIGN_PERIODS
-            while True:  # the grid must hold the whole FIR twice over (no circular wrap)
-                self._grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, vmin)[0], periods)
-                self._inv_g: np.ndarray | None = None
-                response = self._response(vmin)
-                self.delay_samples = half_length(response, cfg.fir_tolerance)
-                if 4 * self.delay_samples + 2 <= 2 * (self._grid.size - 1):
-                    break
-                if self._grid.size > MAX_DESIGN_BINS:
-                    span = 2 * (self._grid.size - 1)
-                    raise ConfigError(f'fir_tolerance: the band response does not decay below '
-                                      f'{cfg.fir_tolerance:g} within {span} samples; raise '
-                                      'fir_tolerance or band_order')
-                periods *= 2
-            taps = fir_taps(response, self.delay_samples)
-            self.truncation_error = truncation_error(taps, response)
-            channels = self.theta.shape[0]
-            self._fir = PartitionedFir(taps, channels)
+            self._fir = self._band_stage()
             self.switch_period = self._fir.switch_period
-            self._design_speed = vmin
+            self._design_speed = cfg.min_design_speed_mps
         self._chain: tuple[int, float, float] | None = None  # last stamp, chainage, speed
         self._offline: list[tuple[np.ndarray, ...]] = []
         self._start_segment()
@@ -204,13 +194,50 @@ class InversionPipeline:
         """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in."""
         cfg = self.config
         lo, hi = band_edges_hz(cfg.band, max(speed, cfg.min_design_speed_mps))
-        bp = bandpass_power(self._grid, lo, hi, cfg.band_order)[None]
+        bp = bandpass_power(self._grid, lo, hi, cfg.band_order)[None] * self._rolloff
         if cfg.method != 'spectral':
             return bp
         if self._inv_g is None:  # 1/G on the design grid does not depend on the speed
             g = frequency_response(self.theta, 2j * np.pi * self._grid[1:])
             self._inv_g = np.concatenate([np.zeros((g.shape[0], 1)), 1.0 / g], axis=1)
         return bp * self._inv_g  # G has its double zero at f = 0 only, where |BP|^2 = 0
+
+    def _band_stage(self) -> PartitionedFir | MultirateFir:
+        """Band FIR designed at min_design_speed_mps (the longest impulse response), run at
+        fs / R when R >= 2; sets ``decimation`` (R, 1 = single rate), ``band_taps`` (at that
+        rate), ``delay_samples`` (input samples) and ``truncation_error``."""
+        cfg = self.config
+        f_top = band_edges_hz(cfg.band, cfg.max_speed_mps)[1]
+        r = decimation(cfg.rate_hz, f_top) if cfg.multirate else 1
+        self.decimation = r if r >= 2 else 1
+        vmin = cfg.min_design_speed_mps
+        rate = cfg.rate_hz / self.decimation
+        periods = DESIGN_PERIODS
+        while True:  # the grid must hold the whole FIR twice over (no circular wrap)
+            self._grid = design_grid(rate, band_edges_hz(cfg.band, vmin)[0], periods)
+            self._rolloff = rolloff(self._grid, f_top, rate) if self.decimation > 1 else 1.0
+            self._inv_g: np.ndarray | None = None
+            response = self._response(vmin)
+            self._half = half_length(response, cfg.fir_tolerance)  # band FIR delay, low samples
+            if 4 * self._half + 2 <= 2 * (self._grid.size - 1):
+                break
+            if self._grid.size > MAX_DESIGN_BINS:
+                span = 2 * (self._grid.size - 1)
+                raise ConfigError(f'fir_tolerance: the band response does not decay below '
+                                  f'{cfg.fir_tolerance:g} within {span} samples; raise '
+                                  'fir_tolerance or band_order')
+            periods *= 2
+        taps = fir_taps(response, self._half)
+        self.band_taps = taps.shape[-1]
+        self.truncation_error = truncation_error(taps, response)
+        channels = self.theta.shape[0]
+        if self.decimation == 1:
+            self.delay_samples = self._half
+            return PartitionedFir(taps, channels)
+        antialias = antialias_taps(cfg.rate_hz, self.decimation, f_top, cfg.fir_tolerance)
+        fir = MultirateFir(taps, channels, self.decimation, antialias)
+        self.delay_samples = self.decimation * self._half + 2 * fir.half_delay
+        return fir
 
     def _start_segment(self) -> None:
         """Zero the filters and the segment's sample counter."""
@@ -298,7 +325,8 @@ class InversionPipeline:
             current = self._stage.design.speed
             v_kf = v if abs(v - current) > tol * current else None
         if self._fir is not None:
-            v = max(abs(self._speed_at(max(n - self.delay_samples, 0))), vmin)
+            v = min(max(abs(self._speed_at(max(n - self.delay_samples, 0))), vmin),
+                    cfg.max_speed_mps)
             current = self._design_speed
             v_band = v if abs(v - current) > tol * current else None
         return v_kf, v_band
@@ -314,7 +342,7 @@ class InversionPipeline:
             self._stage.set_speed(v_kf)
             self._counters['redesign'] += 1
         if v_band is not None:
-            self._fir.set_taps(fir_taps(self._response(v_band), self.delay_samples))
+            self._fir.set_taps(fir_taps(self._response(v_band), self._half))
             self._design_speed = v_band
             self._counters['redesign'] += 1
 
@@ -327,9 +355,9 @@ class InversionPipeline:
         count = max(0, self._n - d) - max(0, n_old - d)
         stamps, chain, emit = self._meta.pop(count)
         self._meta_start += count
-        u = z[:, t_len - count:][:, emit] if count else z[:, :0]
+        keep = slice(None) if emit.all() else emit  # no bridged samples: views, no copies
         self._counters['emitted'] += int(emit.sum())
-        return Output(stamps[emit], chain[emit], u)
+        return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep])
 
     def _end_segment(self) -> Output:
         """Pad the segment with a faded-out acceleration, emit what is pending, restart."""
@@ -356,6 +384,9 @@ class InversionPipeline:
 
     def _join(self, outs: list[Output]) -> Output:
         """Concatenate internal outputs (u always (P, K))."""
+        outs = [o for o in outs if len(o)]
+        if len(outs) == 1:
+            return outs[0]
         p = self.theta.shape[0]
         stamps = np.concatenate([o.stamps_ns for o in outs] + [np.zeros(0, np.int64)])
         chain = np.concatenate([o.chainage_m for o in outs] + [np.zeros(0)])

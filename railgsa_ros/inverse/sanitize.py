@@ -67,17 +67,22 @@ class InputSanitizer:
         frames = frame_mask(frame_ids, self.frame_id)
         wrong = np.zeros_like(ok) if frames is None else ok & ~frames
         ok &= ~wrong
-        sat = ok & (np.abs(np.where(finite, accel, 0.0)) >= self.limit)
+        sat = ok & (np.abs(accel) >= self.limit)  # NaN compares False
         ok &= ~sat
-        idx = np.flatnonzero(ok)
+        sel = slice(None) if ok.all() else np.flatnonzero(ok)  # usual case: no index copies
+        kept = stamps[sel]
         last = self._last[0] if self._last is not None else np.iinfo(np.int64).min
-        prev = np.maximum.accumulate(np.concatenate([[last], stamps[idx]]))[:-1]
-        dup, ooo = stamps[idx] == prev, stamps[idx] < prev
-        idx = idx[~(dup | ooo)]
+        if kept.size == 0 or (kept[0] > last and np.all(kept[1:] > kept[:-1])):
+            dup = ooo = np.zeros(0, bool)  # strictly increasing: no running maximum needed
+        else:
+            prev = np.maximum.accumulate(np.concatenate([[last], kept]))[:-1]
+            dup, ooo = kept == prev, kept < prev
+            sel = np.flatnonzero(ok)[~(dup | ooo)]
+        accepted = stamps[sel]
         self.counters.update({'nan': int(np.sum(~finite)), 'wrong_frame': int(wrong.sum()),
                               'saturated': int(sat.sum()), 'duplicate': int(dup.sum()),
-                              'out_of_order': int(ooo.sum()), 'accepted': idx.size})
-        return self._gaps(stamps[idx], accel[idx], speed[idx])
+                              'out_of_order': int(ooo.sum()), 'accepted': accepted.size})
+        return self._gaps(accepted, accel[sel], speed[sel])
 
     def _gaps(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray) -> Clean:
         """Mark gaps among accepted samples; bridge the short ones when the policy says so."""
