@@ -261,7 +261,9 @@ class InversionPipeline:
         if cfg.remove_bias:
             a_s = self._remove_bias(a_s)
         n0 = self._n + sum(x[0].size for x in self._offline)
-        a_s = a_s * taper(n0 + np.arange(a_s.size), round(cfg.taper_s * cfg.rate_hz))
+        ramp = round(cfg.taper_s * cfg.rate_hz)
+        if n0 < ramp:  # fade-in still running
+            a_s = a_s * taper(n0 + np.arange(a_s.size), ramp)
         self._last_a = float(a_s[-1])
         emit = ~clean.synthetic[sl]
         if cfg.smoother:
