@@ -16,7 +16,7 @@ import yaml
 pytestmark = pytest.mark.ros
 
 REPO = Path(__file__).resolve().parents[1]
-#: a short band delay (1776 samples) keeps the tests fast; no odometry unless a test wants it
+#: a short band delay (about 1.8 s) keeps the tests fast; no odometry unless a test wants it
 PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0}
 T0_NS = 1_000_000_000  # scenario stamps start at 0, which is not a valid header stamp
 G = 9.80665
@@ -207,23 +207,23 @@ def test_parameter_changes_validated_and_applied_with_a_flush(run: Any, rig: Cal
         assert not result.successful and why in result.reason, (name, result.reason)
     assert node.get_parameter('method').value == 'spectral'
 
-    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
-    half = 3000
-    r.publish(imu_msgs(stamps[:half], acc[:half]))
-    assert r.wait_for(lambda: len(r.out) >= half - 1776, 10.0)
-    [result] = node.set_parameters([Parameter('speed_mps', value=40.0)])  # no rebuild
-    assert result.successful, result.reason
-    [result] = node.set_parameters([Parameter('band_order', value=3)])
-    assert result.successful, result.reason
-    r.publish(imu_msgs(stamps[half:], acc[half:]))
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.inverse.pipeline import InversionPipeline
 
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    half = 3000
     cfg = InversionConfig.from_mapping({k: v for k, v in PARAMS.items() if k != 'use_odom'})
     first = InversionPipeline(cfg)
     ref1 = first.push(stamps[:half], acc[:half], 40.0)
     tail = first.flush()
     ref2 = InversionPipeline(cfg.with_(band_order=3)).push(stamps[half:], acc[half:], 40.0)
+    r.publish(imu_msgs(stamps[:half], acc[:half]))
+    assert r.wait_for(lambda: len(r.out) >= len(ref1), 10.0)  # all in before the change
+    [result] = node.set_parameters([Parameter('speed_mps', value=40.0)])  # no rebuild
+    assert result.successful, result.reason
+    [result] = node.set_parameters([Parameter('band_order', value=3)])
+    assert result.successful, result.reason
+    r.publish(imu_msgs(stamps[half:], acc[half:]))
     want_t = np.concatenate([ref1.stamps_ns, tail.stamps_ns, ref2.stamps_ns])
     want_z = np.concatenate([ref1.u_m, tail.u_m, ref2.u_m])
     got_t, _, got_z, _ = r.outputs(len(want_t))
