@@ -22,6 +22,7 @@ from railgsa_ros.track import DEFAULT_WAVELENGTHS, apply_defects, make_profile, 
 from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
 MIN_SIM_RATE_HZ = 2000.0
+DEFAULT_START_NS = 1_700_000_000 * 10**9  # 2023-11-14: realistic, non-zero (nodes refuse 0)
 POINTS_PER_WAVELENGTH = 20
 
 
@@ -92,14 +93,15 @@ def run_scenario(profile_spec: str, speed_mps: float | np.ndarray, duration_s: f
                  defects: str | list | None = None,
                  vehicle: VehicleParams | np.ndarray | str | Path | None = None, *,
                  wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS,
-                 start_ns: int = 0) -> Run:
+                 start_ns: int = DEFAULT_START_NS) -> Run:
     """Simulate one run; see the module docstring.
 
     profile_spec: german-low|german-high|fra-N|paper|file:CSV (track.make_profile); speed_mps: a
     constant or a speed profile in time (m/s); duration_s (s); rate_hz: IMU output rate (None:
     the preset's); sensor: preset name or ImuSpec; seed drives profile and sensor (independent
     streams); defects: spec string or list (track.parse_defects); vehicle: VehicleParams, theta
-    (5,), a vehicle YAML path or None (Table 1); start_ns: stamp of the first sample.
+    (5,), a vehicle YAML path or None (Table 1); start_ns: stamp of the first sample (ns;
+    default DEFAULT_START_NS: a zero stamp is malformed for the nodes).
     """
     spec = imu_spec(sensor) if isinstance(sensor, str) else sensor
     if rate_hz is not None:

@@ -9,20 +9,16 @@ Tests marked ``ros`` are skipped when rclpy is not importable.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 import importlib.util
-import os
 from pathlib import Path
-import random
 import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from typing import Any
 
 import pytest
+
+from railgsa_ros.system import NodeProcess, isolated_domain
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -36,7 +32,6 @@ def _have_rclpy() -> bool:
 
 
 HAVE_RCLPY = _have_rclpy()
-_PORT_BASE = 32768
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -55,34 +50,12 @@ def have_rclpy() -> bool:
     return HAVE_RCLPY
 
 
-def _reserve_domain() -> tuple[int, socket.socket | None]:
-    """A free domain id in 1..100 and the socket that holds it (None for the pid fallback)."""
-    ids = list(range(1, 101))
-    random.Random(os.getpid()).shuffle(ids)
-    for domain in ids:
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        try:
-            sock.bind(('127.0.0.1', _PORT_BASE + domain))
-        except OSError:
-            sock.close()
-            continue
-        return domain, sock
-    return 1 + os.getpid() % 100, None
-
-
 @pytest.fixture(scope='session', autouse=True)
 def ros_domain() -> Iterator[int]:
     """This session's ROS_DOMAIN_ID, localhost only: exported for the whole session (autouse),
     so every subprocess a test starts inherits it."""
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    os.environ.pop('ROS_LOCALHOST_ONLY', None)
-    domain, sock = _reserve_domain()
-    os.environ['ROS_DOMAIN_ID'] = str(domain)
-    try:
+    with isolated_domain() as domain:
         yield domain
-    finally:
-        if sock is not None:
-            sock.close()
 
 
 @pytest.fixture
@@ -140,49 +113,6 @@ def wait_for() -> Callable[..., bool]:
     return wait_until
 
 
-@dataclass(frozen=True)
-class NodeResult:
-    """Outcome of a node subprocess: return code and its captured output."""
-
-    rc: int
-    stdout: str
-    stderr: str
-
-
-class NodeProcess:
-    """A node run as ``python -m <module> --ros-args ...``; stdout/stderr go to files in logdir."""
-
-    def __init__(self, module: str, ros_args: list[str], logdir: Path) -> None:
-        logdir.mkdir(parents=True, exist_ok=True)
-        stem = f'{module.rsplit(".", 1)[-1]}-{time.monotonic_ns()}'
-        self.out_path, self.err_path = logdir / f'{stem}.out', logdir / f'{stem}.err'
-        fds = [os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-               for p in (self.out_path, self.err_path)]
-        try:
-            self.proc = subprocess.Popen(
-                [sys.executable, '-m', module, '--ros-args', *ros_args],
-                stdout=fds[0], stderr=fds[1], cwd=REPO, env=dict(os.environ))
-        finally:
-            for fd in fds:
-                os.close(fd)
-
-    def running(self) -> bool:
-        """Whether the process is still alive."""
-        return self.proc.poll() is None
-
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> NodeResult:
-        """Send ``sig`` (if still running), wait, kill after ``timeout`` s; return the result."""
-        if self.running():
-            self.proc.send_signal(sig)
-        try:
-            rc = self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            rc = self.proc.wait()
-        return NodeResult(rc, self.out_path.read_text('utf-8', 'replace'),
-                          self.err_path.read_text('utf-8', 'replace'))
-
-
 @pytest.fixture
 def start_node(ros_domain: int, tmp_path: Path) -> Iterator[Callable[..., NodeProcess]]:
     """``start_node('railgsa_ros.nodes.x', ['-p', 'k:=v'])`` -> NodeProcess in this session's
@@ -191,7 +121,8 @@ def start_node(ros_domain: int, tmp_path: Path) -> Iterator[Callable[..., NodePr
     procs: list[NodeProcess] = []
 
     def start(module: str, ros_args: list[str] | None = None) -> NodeProcess:
-        proc = NodeProcess(module, list(ros_args or []), tmp_path / 'node-logs')
+        proc = NodeProcess(module, ['--ros-args', *(ros_args or [])], tmp_path / 'node-logs',
+                           cwd=REPO)
         procs.append(proc)
         return proc
 
