@@ -240,11 +240,30 @@ def test_invalid_start_parameters_raise_config_error(ros_context: Any) -> None:
     from railgsa_ros.nodes.irregularity_node import IrregularityNode
 
     for name, value, why in (('method', 'banana', 'method'), ('rate_hz', 0.5, 'rate_hz'),
-                             ('speed_mps', 1, 'expected a float'),
+                             ('speed_mps', 'fast', 'expected a float'),
                              ('vehicle_file', '/nonexistent.yaml', 'nonexistent')):
         with pytest.raises(ConfigError, match=why):
             IrregularityNode(context=ros_context,
                              parameter_overrides=[Parameter(name, value=value)])
+
+
+def test_integer_accepted_for_a_float_parameter(ros_context: Any) -> None:
+    from rclpy.parameter import Parameter
+
+    from railgsa_ros.nodes.irregularity_node import IrregularityNode
+
+    node = IrregularityNode(context=ros_context, parameter_overrides=[
+        Parameter('speed_mps', value=30), Parameter('gain', value=2000)])
+    try:
+        assert node.get_parameter('speed_mps').value == 30.0
+        assert node.get_parameter('speed_mps').type_ == Parameter.Type.DOUBLE
+        results = node.set_parameters([Parameter('speed_mps', value=25),
+                                       Parameter('speed_mps', value='slow')])
+        assert [r.successful for r in results] == [True, False]
+        assert 'expected' in results[1].reason.lower() or 'type' in results[1].reason.lower()
+        assert node.get_parameter('speed_mps').value == 25.0
+    finally:
+        node.destroy_node()
 
 
 def test_vehicle_file_replaces_the_vehicle_parameters(run: Any, rig: Callable,

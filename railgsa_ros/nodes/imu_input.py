@@ -50,31 +50,54 @@ class Samples:
 
 class ImuIntake:
     """Subscriptions and conversion for the IMU and odometry; ``counts`` holds received,
-    malformed, wrong_frame_accepted and odom_malformed."""
+    malformed, wrong_frame_accepted and odom_malformed.
+
+    With ``on_messages`` the IMU subscription calls it with every waiting message; without it
+    the subscription belongs to a helper node ``<node>_imu_reader`` that no executor spins and
+    the owner polls ``take()`` (the 1 kHz stream then never wakes the executor).
+    """
 
     def __init__(self, node: Node, values: Mapping[str, Any],
-                 on_messages: Callable[[list[Imu]], None]) -> None:
+                 on_messages: Callable[[list[Imu]], None] | None = None) -> None:
         self._node = node
         self._on_messages = on_messages
         self.counts: Counter[str] = Counter()
         self.odom: tuple[int, float] | None = None  #: newest (stamp ns, speed m/s)
         self.odom_missing = False  #: use_odom but no fresh odometry at the last batch
         self.speed_mps = float(values['speed_mps'])  #: speed used for the last batch
-        self.sub = node.create_subscription(Imu, 'imu/data', self._on_imu,
-                                            sensor_qos(values['imu_qos_depth']))
-        if values['use_odom']:
-            node.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos(ODOM_DEPTH))
+        self._reader = None if on_messages is not None else Node(
+            f'{node.get_name()}_imu_reader', context=node.context,
+            namespace=node.get_namespace())
+        self.sub = (self._reader or node).create_subscription(
+            Imu, 'imu/data', self._on_imu, sensor_qos(values['imu_qos_depth']))
+        self._odom_sub = node.create_subscription(
+            Odometry, 'odom', self._on_odom, sensor_qos(ODOM_DEPTH)) if values['use_odom'] \
+            else None
 
-    def _on_imu(self, msg: Imu) -> None:
-        msgs = [msg]
+    def destroy(self) -> None:
+        """Destroy the subscriptions (and the helper reader node)."""
+        if self._reader is not None:
+            self._reader.destroy_node()
+        else:
+            self._node.destroy_subscription(self.sub)
+        if self._odom_sub is not None:
+            self._node.destroy_subscription(self._odom_sub)
+
+    def take(self, first: list[Imu] | None = None, limit: int = MAX_BATCH) -> list[Imu]:
+        """``first`` plus the messages waiting in the reader history, ``limit`` at most."""
+        msgs = first or []
         handle = self.sub.handle
         with handle:
-            while len(msgs) < MAX_BATCH:
+            while len(msgs) < limit:
                 taken = handle.take_message(Imu, False)
                 if taken is None:
                     break
                 msgs.append(taken[0])
-        self._on_messages(msgs)
+        return msgs
+
+    def _on_imu(self, msg: Imu) -> None:
+        if self._on_messages is not None:
+            self._on_messages(self.take([msg]))
 
     def _on_odom(self, msg: Odometry) -> None:
         sample = odom_speed(msg)

@@ -13,11 +13,16 @@ latency); under load the batches grow and the cost per sample falls. benchmarks/
 bench_node_latency.py measured this against per-message processing (falls behind) and a 100 Hz
 timer (+5-10 ms latency).
 
-Structured for a later lifecycle version: ``_declare_parameters`` + ``build_model`` (configure),
-``_create_interfaces`` (activate).
+A managed lifecycle node (:mod:`railgsa_ros.nodes.lifecycle`): configure declares and checks the
+parameters and builds the pipeline, activate subscribes, deactivate unsubscribes, cleanup drops
+the pipeline; ``autostart`` (default true) goes to active at start-up.
 """
 
 from __future__ import annotations
+
+import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal from here on)
+
+# isort: split
 
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -28,9 +33,6 @@ from typing import Any
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 
@@ -48,7 +50,8 @@ from railgsa_ros.nodes.diagnostics import (
 )
 from railgsa_ros.nodes.imu_conversion import NS_PER_S
 from railgsa_ros.nodes.imu_input import ImuIntake
-from railgsa_ros.nodes.params import declare, merged
+from railgsa_ros.nodes.lifecycle import ManagedNode, run
+from railgsa_ros.nodes.params import accept_integers, declare, merged
 from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
@@ -77,23 +80,67 @@ def build_model(values: Mapping[str, Any], noise_variance: float | None = None
     return InversionPipeline(inversion_config(values), vehicle, noise_variance)
 
 
-class IrregularityNode(Node):
-    """The node; ConfigError from the constructor when the parameters are invalid."""
+class IrregularityNode(ManagedNode):
+    """The managed node; with autostart (default), ConfigError from the constructor when the
+    parameters are invalid."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self._values = self._declare_parameters()
+        self._values: dict[str, Any] | None = None
         self._noise_variance: float | None = None
-        self._pipeline = build_model(self._values)
+        self._pipeline: InversionPipeline | None = None
         self._candidate: InversionPipeline | None = None
         self._next_model: InversionPipeline | None = None
         self._retired: Counter[str] = Counter()  # counters of replaced pipelines
         self._counts: Counter[str] = Counter()   # rebuild, internal_error, published
         self._latency = LatencyWindow()
         self._deltas = {task: Deltas() for task in ('imu', 'inversion')}
+        self._first_stamp_ns = -1  # first IMU stamp processed since the process started
+        self._intake: ImuIntake | None = None
+        self._diagnostics: DiagnosticsPublisher | None = None
+        self._pub: Any = None
+        self.add_pre_set_parameters_callback(accept_integers(SPECS))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self._create_interfaces()
+        self.autostart()
+
+    # ------------------------------------------------------------------ lifecycle
+    def configure(self) -> None:
+        """Read and validate the parameters, build the pipeline and the publisher."""
+        values = self._declare_parameters()
+        self._pipeline = build_model(values, self._noise_variance)
+        self._values = values
+        self._pub = self.create_lifecycle_publisher(PointStamped, 'track/irregularity',
+                                                    output_qos(values['output_qos_depth']))
+        self._out_msg = PointStamped()
+        self._out_msg.header.frame_id = OUTPUT_FRAME
+
+    def activate(self) -> None:
+        """Subscriptions and the diagnostics reporter."""
+        assert self._values is not None
+        self._intake = ImuIntake(self, self._values, self._on_messages)
+        self._diagnostics = DiagnosticsPublisher(self, self._values['hardware_id'])
+        self._diagnostics.add('imu input', self._report_input)
+        self._diagnostics.add('inversion', self._report_inversion)
+
+    def deactivate(self) -> None:
+        """Stop taking input (pending output stays in the filters) and reporting."""
+        if self._intake is not None:
+            self._counts.update(self._intake.counts)
+            self._intake.destroy()
+            self._intake = None
+        if self._diagnostics is not None:
+            self._diagnostics.destroy()
+            self._diagnostics = None
+
+    def release(self) -> None:
+        """Drop the pipeline (its counters are kept) and the publisher."""
+        if self._pipeline is not None:
+            self._retire(None)
+        if self._pub is not None:
+            self.destroy_lifecycle_publisher(self._pub)
+            self._pub = None
+        self._values = self._candidate = self._next_model = None
 
     # ------------------------------------------------------------------ configuration
     def _declare_parameters(self) -> dict[str, Any]:
@@ -109,7 +156,12 @@ class IrregularityNode(Node):
         return values
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Reject invalid values or combinations with the reason; build the new model early."""
+        """Reject invalid values or combinations with the reason; build the new model early.
+        Unconfigured: only the specs' own checks (configure validates the whole set)."""
+        if self._values is None:
+            reason = next((r for r in (s.check(p.value) for p in params for s in SPECS
+                                       if s.name == p.name) if r), None)
+            return SetParametersResult(successful=reason is None, reason=reason or '')
         values, reason = merged(self._values, SPECS, params)
         self._candidate = None
         if any(p.name in MODEL_PARAMS for p in params):
@@ -123,20 +175,11 @@ class IrregularityNode(Node):
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
         """Accepted: store the values; a new model takes over at the next sample."""
+        if self._values is None:
+            return
         self._values, _ = merged(self._values, SPECS, params)
         if self._candidate is not None:
             self._next_model, self._candidate = self._candidate, None
-
-    def _create_interfaces(self) -> None:
-        """Subscriptions, the publisher and the diagnostics reporter."""
-        self._intake = ImuIntake(self, self._values, self._on_messages)
-        self._pub = self.create_publisher(PointStamped, 'track/irregularity',
-                                          output_qos(self._values['output_qos_depth']))
-        self._out_msg = PointStamped()
-        self._out_msg.header.frame_id = OUTPUT_FRAME
-        self._diagnostics = DiagnosticsPublisher(self, self._values['hardware_id'])
-        self._diagnostics.add('imu input', self._report_input)
-        self._diagnostics.add('inversion', self._report_inversion)
 
     # ------------------------------------------------------------------ data path
     def _on_messages(self, msgs: list[Imu]) -> None:
@@ -145,8 +188,13 @@ class IrregularityNode(Node):
         self._latency.add(time.monotonic() - t_rx)
 
     def process(self, msgs: Sequence[Imu]) -> Output | None:
-        """Convert, push through the pipeline, publish; returns what was published."""
+        """Convert, push through the pipeline, publish; returns what was published (None when
+        not active)."""
+        if self._intake is None or self._pipeline is None or self._values is None:
+            return None
         samples = self._intake.prepare(msgs, self._pipeline.config, self._values)
+        if samples is not None and self._first_stamp_ns < 0:
+            self._first_stamp_ns = int(samples.stamps_ns[0])
         if samples is not None and samples.reported_variance is not None:
             self._use_reported_noise(samples.reported_variance)
         flushed = self._switch_model()
@@ -180,8 +228,8 @@ class IrregularityNode(Node):
         self._counts['rebuild'] += 1
         return flushed
 
-    def _retire(self, successor: InversionPipeline) -> None:
-        """Replace the pipeline, keeping its counters."""
+    def _retire(self, successor: InversionPipeline | None) -> None:
+        """Replace (or drop) the pipeline, keeping its counters."""
         self._retired.update(self._pipeline.counters)
         self._pipeline = successor
 
@@ -209,8 +257,9 @@ class IrregularityNode(Node):
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
         """Cumulative counts by reason over the node's life (all pipelines)."""
-        return dict(self._retired + Counter(self._pipeline.counters) + self._counts
-                    + self._intake.counts)
+        live = [] if self._pipeline is None else [Counter(self._pipeline.counters)]
+        intake = [] if self._intake is None else [self._intake.counts]
+        return dict(sum((*live, *intake, self._counts), self._retired.copy()))
 
     def _report_input(self, elapsed_s: float) -> Report:
         totals = self.counters()
@@ -233,6 +282,7 @@ class IrregularityNode(Node):
             'speed_mps': intake.speed_mps,
             'speed_source': 'parameter' if intake.odom_missing or not self._values['use_odom']
             else 'odom',
+            'first_stamp_ns': self._first_stamp_ns, **self.lifecycle_values(),
         }
         values.update(self._latency.take())
         if delta.get('internal_error', 0):
@@ -247,23 +297,7 @@ class IrregularityNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until SIGINT/SIGTERM; exit code 0, or 2 with one line for bad parameters."""
-    node = None
-    try:
-        rclpy.init(args=args)
-        node = IrregularityNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except ConfigError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run(IrregularityNode, args)
 
 
 if __name__ == '__main__':

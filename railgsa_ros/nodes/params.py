@@ -2,11 +2,13 @@
 
 rclpy itself enforces the type, the numeric range and read_only; ``choices`` (string enums) are
 checked here. ``declare`` turns any rejection at start-up into a ConfigError naming the parameter.
+An integer given for a float parameter (``-p speed_mps:=30``) is taken as that float, at start-up
+(``declare``) and later (``accept_integers``, a pre-set callback); other wrong types are refused.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,14 +55,38 @@ class ParamSpec:
         return None
 
 
+def as_float(param: Parameter, specs: Mapping[str, ParamSpec]) -> Parameter:
+    """``param`` as a DOUBLE when it is an INTEGER for a float spec, else unchanged."""
+    spec = specs.get(param.name)
+    if spec is not None and isinstance(spec.default, float) and \
+            param.type_ == Parameter.Type.INTEGER:
+        return Parameter(param.name, Parameter.Type.DOUBLE, float(param.value))
+    return param
+
+
+def accept_integers(specs: Iterable[ParamSpec]) -> Callable[[list[Parameter]], list[Parameter]]:
+    """A pre-set-parameters callback turning integers for float ``specs`` into floats."""
+    by_name = {s.name: s for s in specs}
+    return lambda params: [as_float(p, by_name) for p in params]
+
+
 def declare(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
     """Declare every spec on ``node`` (overrides from --ros-args apply); return name -> value.
 
+    Already declared parameters keep their current value (a lifecycle node configured again).
     Raises ConfigError naming the parameter for a wrong type, an out-of-range value or a value
     that is not one of its choices.
     """
     values = {}
+    specs = tuple(specs)
+    overrides = getattr(node, '_parameter_overrides', {})  # rclpy keeps --ros-args -p here
+    by_name = {s.name: s for s in specs}
+    for name, override in list(overrides.items()):
+        overrides[name] = as_float(override, by_name)
     for spec in specs:
+        if node.has_parameter(spec.name):
+            values[spec.name] = node.get_parameter(spec.name).value
+            continue
         try:
             param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
         except InvalidParameterTypeException:

@@ -1,0 +1,43 @@
+"""Imported first by every node module: SIGINT/SIGTERM exit with code 0 from the first line on.
+
+When the process was started as a node (``python -m railgsa_ros.nodes.<node>`` or its console
+script), importing this module replaces the SIGINT and SIGTERM handlers with one that raises
+``SystemExit(0)`` once (later signals are ignored): a stop request during the heavy imports, during
+``rclpy.init`` or while the node is built ends the process quietly with code 0, and ``finally``
+blocks still run. rclpy's own handlers, installed later, chain to it. Imported by anything else
+(tests, the CLI) it changes nothing. No ROS import.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import signal
+import sys
+import threading
+from types import FrameType
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _exit_once(_signum: int, _frame: FrameType | None) -> None:
+    for sig in SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    raise SystemExit(0)
+
+
+def install() -> None:
+    """SIGINT/SIGTERM raise SystemExit(0) once (main thread only)."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in SIGNALS:
+            signal.signal(sig, _exit_once)
+
+
+def started_as_node(argv0: str) -> bool:
+    """Whether ``argv0`` (sys.argv[0]) names a module of railgsa_ros/nodes."""
+    stem = Path(argv0).stem
+    return bool(stem) and not stem.startswith('_') and (Path(__file__).parent
+                                                          / f'{stem}.py').is_file()
+
+
+if sys.argv and started_as_node(sys.argv[0]):
+    install()

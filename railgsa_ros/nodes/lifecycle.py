@@ -1,0 +1,133 @@
+"""Managed (lifecycle) node base shared by irregularity_node and uncertainty_node, and ``run``.
+
+Transitions (REP-free summary; docs/nodes.md has the table):
+
+- configure: declare and validate the parameters, build the model (``configure``); a
+  ConfigError is logged, kept in ``config_error`` and the node stays unconfigured;
+- activate: subscriptions and diagnostics on (``activate``), lifecycle publishers enabled;
+- deactivate: subscriptions and diagnostics off (``deactivate``), publishers disabled;
+- cleanup / shutdown: the model and every interface released (``release``).
+
+Parameter ``autostart`` (default true): ``autostart()``, called at the end of the subclass
+constructor, walks the node to active and raises ConfigError when configuring fails; ``run`` turns
+that into exit code 2 and one line.
+Each process start gets a ``boot_id`` and a wall-clock ``started_ns`` for /diagnostics, so a
+restart is visible there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import sys
+import time
+from typing import Any
+import uuid
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
+
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.nodes.params import ParamSpec, declare
+
+AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up (false: wait for '
+                      '~/change_state)', read_only=True)
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+#: one id per process: a node restarted by a supervisor shows a new one on /diagnostics
+BOOT_ID = uuid.uuid4().hex[:12]
+STARTED_NS = time.time_ns()
+
+
+class ManagedNode(Node):
+    """A lifecycle node; subclasses implement configure, activate, deactivate and release."""
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self.config_error: str | None = None
+        self.activations = 0  #: transitions to active in this process
+
+    def autostart(self) -> None:
+        """With parameter autostart (default true): ``start()``."""
+        if declare(self, (AUTOSTART,))['autostart']:
+            self.start()
+
+    def start(self) -> None:
+        """Configure then activate; ConfigError with the reason if either fails."""
+        if self.trigger_configure() != SUCCESS:
+            raise ConfigError(self.config_error or 'configure failed')
+        if self.trigger_activate() != SUCCESS:
+            raise ConfigError('activate failed')
+
+    def lifecycle_values(self) -> dict[str, object]:
+        """Process and lifecycle facts for /diagnostics."""
+        return {'boot_id': BOOT_ID, 'started_unix_s': STARTED_NS / 1e9,
+                'activations': self.activations}
+
+    # ------------------------------------------------------------------ transitions
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self.configure()
+        except ConfigError as exc:
+            self.config_error = str(exc)
+            self.get_logger().error(f'configure failed: {exc}')
+            self.release()
+            return FAILURE
+        self.config_error = None
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.activate()
+        self.activations += 1
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.release()
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.deactivate()
+        self.release()
+        return super().on_shutdown(state)
+
+    # ------------------------------------------------------------------ for subclasses
+    def configure(self) -> None:
+        """Declare/read the parameters and build the model; ConfigError if invalid."""
+        raise NotImplementedError
+
+    def activate(self) -> None:
+        """Create the subscriptions and timers (publishers are lifecycle publishers)."""
+        raise NotImplementedError
+
+    def deactivate(self) -> None:
+        """Destroy what ``activate`` created; harmless when not active."""
+        raise NotImplementedError
+
+    def release(self) -> None:
+        """Drop the model and the publishers; harmless when not configured."""
+        raise NotImplementedError
+
+
+def run(factory: Callable[[], ManagedNode], args: list[str] | None = None) -> int:
+    """Build the node and spin until SIGINT/SIGTERM: exit code 0, or 2 with one line
+    ``error: <reason>`` when autostart fails on bad parameters."""
+    node = None
+    try:
+        rclpy.init(args=args)
+        node = factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except ConfigError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
