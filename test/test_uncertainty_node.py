@@ -184,8 +184,9 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
     time.sleep(0.2)
     with listener.lock:
         got = np.array(listener.band)
+        got_t = np.array([b[0] for b in listener.band], np.int64)  # float64 rounds 1.7e18 ns
         arrays = list(listener.sensitivity)
-    np.testing.assert_array_equal(got[:, 0].astype(np.int64), ref.stamps_ns[:count])
+    np.testing.assert_array_equal(got_t, ref.stamps_ns[:count])
     scale = np.abs(ref.mean_m).max()
     for col, name in enumerate(('lower_m', 'mean_m', 'upper_m'), start=1):
         np.testing.assert_allclose(got[:, col], getattr(ref, name)[:count], rtol=0,
@@ -248,7 +249,8 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
     assert wait_for(lambda: len(listener.band) >= count, 30.0), (len(listener.band), count)
     with listener.lock:
         got = np.array(listener.band)
-    np.testing.assert_array_equal(got[:, 0].astype(np.int64), ref.stamps_ns[:count])
+        got_t = np.array([b[0] for b in listener.band], np.int64)
+    np.testing.assert_array_equal(got_t, ref.stamps_ns[:count])
     np.testing.assert_allclose(got[:, 1:], np.stack([ref.lower_m, ref.mean_m, ref.upper_m],
                                                     axis=1)[:count],
                                rtol=0, atol=1e-12 * np.abs(ref.mean_m).max())
@@ -278,7 +280,7 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     odom = Odometry()
     odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(int(stamps[-1]), NS)
     odom.twist.twist.linear.x = 25.0
-    node._on_odom(odom)
+    node._intake._on_odom(odom)
     msgs = imu_messages(stamps, acc)
     for m in msgs:
         m.linear_acceleration_covariance[0] = 0.0
@@ -289,7 +291,7 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     ref = UncertaintyStream(config, noise_variance=4e-6).push(stamps, acc, 25.0).band
     np.testing.assert_array_equal(band.stamps_ns, ref.stamps_ns)
     np.testing.assert_allclose(band.mean_m, ref.mean_m, rtol=1e-12, atol=0)
-    assert node._speed == 25.0
+    assert node._intake.speed_mps == 25.0
 
 
 def test_invalid_start_parameters_raise_config_error(ros_context: Any, tmp_path: Any) -> None:

@@ -12,15 +12,20 @@ inverse for the rule's parameter points as one vectorised bank
   one status per uncertain parameter (sobol_first, sobol_total, delta) and a ``summary`` status;
 - ``/diagnostics``: input counts by reason, compute time per window, fraction of one core used.
 
-Input polling: the imu/data subscription belongs to a helper node ``uncertainty_node_imu_reader``
-that no executor spins, so the 1 kHz stream never wakes the executor; a steady-clock timer takes
-every waiting message from the reader history (depth ``imu_qos_depth``) every
-``process_period_s`` and processes them as one batch (measured: the per-message executor
-dispatch is most of a Python node's cost at 1 kHz). All parameters are read-only: restart the
-node to change them. See docs/uncertainty_node.md.
+Input polling: :class:`~railgsa_ros.nodes.imu_input.ImuIntake` in polled mode (the imu/data
+subscription belongs to a helper node ``uncertainty_node_imu_reader`` that no executor spins, so
+the 1 kHz stream never wakes the executor); a steady-clock timer takes every waiting message
+every ``process_period_s`` and processes them as one batch (measured: the per-message executor
+dispatch is most of a Python node's cost at 1 kHz). All parameters are read-only: to change
+them, deactivate, clean up, set, configure and activate again, or restart. A managed lifecycle
+node like irregularity_node (:mod:`railgsa_ros.nodes.lifecycle`). See docs/uncertainty_node.md.
 """
 
 from __future__ import annotations
+
+import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal from here on)
+
+# isort: split
 
 from collections import Counter
 from collections.abc import Sequence
@@ -31,35 +36,28 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
-from nav_msgs.msg import Odometry
 import numpy as np
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
-from railgsa_ros.errors import ConfigError
-from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.pipeline import vertical
-from railgsa_ros.inverse.sanitize import REASONS
 from railgsa_ros.nodes.diagnostics import (
     ERROR,
     OK,
     STALE,
-    WARN,
     Deltas,
     DiagnosticsPublisher,
     Report,
     make_status,
 )
-from railgsa_ros.nodes.imu_conversion import NS_PER_S, imu_batch, odom_speed
-from railgsa_ros.nodes.irregularity_node import INVERSION_SPECS, NODE_SPECS, VEHICLE_SPECS
-from railgsa_ros.nodes.params import ParamSpec, declare
-from railgsa_ros.nodes.qos import output_qos, sensor_qos
+from railgsa_ros.nodes.imu_conversion import NS_PER_S
+from railgsa_ros.nodes.imu_input import ImuIntake
+from railgsa_ros.nodes.lifecycle import ManagedNode, run
+from railgsa_ros.nodes.params import ParamSpec, accept_integers, declare
+from railgsa_ros.nodes.qos import output_qos
+from railgsa_ros.nodes.specs import INVERSION_SPECS, NODE_SPECS, VEHICLE_SPECS, vehicle_values
 from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream
 from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
-from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, load_vehicle
+from railgsa_ros.vehicle import VehicleParams
 
 NODE_NAME = 'uncertainty_node'
 OUTPUT_FRAME = 'track'
@@ -82,10 +80,6 @@ SPECS = tuple(replace(s, read_only=True) for s in
               (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, *_OWN_SPECS, *_EXTRA_SPECS))
 
 
-def _never_called(_msg: Imu) -> None:
-    """Callback of the polled subscription (its node is never spun)."""
-
-
 def sensitivity_message(record: Sensitivity, hardware_id: str) -> DiagnosticArray:
     """track/sensitivity for one window and QoI: a status per parameter and a summary."""
     statuses = [make_status(name, hardware_id, Report(OK, record.qoi, {
@@ -106,93 +100,107 @@ def sensitivity_message(record: Sensitivity, hardware_id: str) -> DiagnosticArra
     return msg
 
 
-class UncertaintyNode(Node):
-    """The node; ConfigError from the constructor when the parameters are invalid."""
+class UncertaintyNode(ManagedNode):
+    """The managed node; with autostart (default), ConfigError from the constructor when the
+    parameters are invalid."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        values = self._values = declare(self, SPECS)
-        inversion = {s.name: values[s.name] for s in INVERSION_SPECS}
-        self.config = UncertaintyConfig.from_mapping(
-            {**inversion, **{s.name: values[s.name] for s in _OWN_SPECS}})
-        self.vehicle = load_vehicle(values['vehicle_file']) if values['vehicle_file'] else \
-            VehicleParams(**{n: values[n] for n in PARAM_NAMES})
-        self.dists = load_uncertainty(values['uncertainty_file']) if \
-            values['uncertainty_file'] else table3(self.vehicle)
+        self._values: dict[str, Any] = {}
+        self.stream: UncertaintyStream | None = None
         self._noise_variance: float | None = None
-        self.stream = UncertaintyStream(self.config, self.vehicle, self.dists)
         self._retired: Counter[str] = Counter()
         self._counts: Counter[str] = Counter()
-        self._odom: tuple[int, float] | None = None
-        self._speed = float(values['speed_mps'])
         self._window_ms = (float('nan'), 0.0)  # last, max compute time per window
         self._cpu = (time.monotonic(), time.process_time())
         self._deltas = {task: Deltas() for task in ('imu', 'uncertainty')}
-        self._create_interfaces()
+        self._first_stamp_ns = -1  # first IMU stamp processed since the process started
+        self._intake: ImuIntake | None = None
+        self._diagnostics: DiagnosticsPublisher | None = None
+        self._timer: Any = None
+        self._pubs: tuple[Any, ...] = ()
+        self.add_pre_set_parameters_callback(accept_integers(SPECS))
+        self.autostart()
+
+    # ------------------------------------------------------------------ lifecycle
+    def configure(self) -> None:
+        """Read and validate the parameters, build the stream and the publishers."""
+        values = declare(self, SPECS)
+        inversion = {s.name: values[s.name] for s in INVERSION_SPECS}
+        self.config = UncertaintyConfig.from_mapping(
+            {**inversion, **{s.name: values[s.name] for s in _OWN_SPECS}})
+        self.vehicle = VehicleParams(**vehicle_values(values))
+        self.dists = load_uncertainty(values['uncertainty_file']) if \
+            values['uncertainty_file'] else table3(self.vehicle)
+        self.stream = UncertaintyStream(self.config, self.vehicle, self.dists,
+                                        self._noise_variance)
+        self._values = values
+        self._pubs = (
+            self.create_lifecycle_publisher(Vector3Stamped, 'track/irregularity_band',
+                                            output_qos(values['output_qos_depth'])),
+            self.create_lifecycle_publisher(DiagnosticArray, 'track/sensitivity',
+                                            output_qos(values['sensitivity_qos_depth'])))
+        self._band_msg = Vector3Stamped()
+        self._band_msg.header.frame_id = OUTPUT_FRAME
         design = self.stream.design
         self.get_logger().info(
             f'{design.points} rule points ({self.config.rule}, order {self.config.order}, '
             f'{design.fit}) over {", ".join(design.names)}; band delay '
             f'{self.stream.delay_samples} samples')
 
-    def _create_interfaces(self) -> None:
+    def activate(self) -> None:
+        """The polled IMU intake, its timer and the diagnostics reporter."""
         values = self._values
-        self._reader = Node(f'{NODE_NAME}_imu_reader', context=self.context,
-                            namespace=self.get_namespace())
-        self._imu_sub = self._reader.create_subscription(Imu, 'imu/data', _never_called,
-                                                         sensor_qos(values['imu_qos_depth']))
-        if values['use_odom']:
-            self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos(50))
-        self._band_pub = self.create_publisher(Vector3Stamped, 'track/irregularity_band',
-                                               output_qos(values['output_qos_depth']))
-        self._gsa_pub = self.create_publisher(DiagnosticArray, 'track/sensitivity',
-                                              output_qos(values['sensitivity_qos_depth']))
-        self._band_msg = Vector3Stamped()
-        self._band_msg.header.frame_id = OUTPUT_FRAME
-        self.create_timer(values['process_period_s'], self._on_timer,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._intake = ImuIntake(self, values)
+        self._timer = self.create_timer(values['process_period_s'], self._on_timer,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._diagnostics = DiagnosticsPublisher(self, values['hardware_id'])
         self._diagnostics.add('imu input', self._report_input)
         self._diagnostics.add('uncertainty', self._report_uncertainty)
 
-    # ------------------------------------------------------------------ data path
-    def _on_odom(self, msg: Odometry) -> None:
-        """Keep the newest odometry speed."""
-        sample = odom_speed(msg)
-        if sample is None:
-            self._counts['odom_malformed'] += 1
-        elif self._odom is None or sample[0] >= self._odom[0]:
-            self._odom = sample
+    def deactivate(self) -> None:
+        """Stop taking input and reporting."""
+        if self._intake is not None:
+            self._counts.update(self._intake.counts)
+            self._intake.destroy()
+            self._intake = None
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+        if self._diagnostics is not None:
+            self._diagnostics.destroy()
+            self._diagnostics = None
 
+    def release(self) -> None:
+        """Drop the stream (its counters are kept) and the publishers."""
+        if self.stream is not None:
+            self._retired.update(self.stream.counters)
+            self.stream = None
+        for pub in self._pubs:
+            self.destroy_lifecycle_publisher(pub)
+        self._pubs = ()
+
+    # ------------------------------------------------------------------ data path
     def _on_timer(self) -> None:
         """Take every message waiting in the reader history and process them."""
-        msgs = []
-        handle = self._imu_sub.handle
-        with handle:
-            while len(msgs) < MAX_BATCH:
-                taken = handle.take_message(Imu, False)
-                if taken is None:
-                    break
-                msgs.append(taken[0])
+        msgs = self._intake.take(limit=MAX_BATCH) if self._intake is not None else []
         if msgs:
             self.process(msgs)
 
     def process(self, msgs: Sequence[Imu]) -> Band | None:
-        """Convert, push through the stream, publish band and windows; returns the band."""
-        self._counts['received'] += len(msgs)
-        batch = imu_batch(msgs)
-        self._counts['malformed'] += int(batch.malformed.sum())
-        good = ~batch.malformed
-        if not good.any():
+        """Convert, push through the stream, publish band and windows; returns the band (None
+        when not active or nothing was accepted)."""
+        if self._intake is None or self.stream is None:
             return None
-        cfg: InversionConfig = self.config.inversion
-        self._use_reported_noise(batch.accel_var[good, 'xyz'.index(cfg.accel_axis[-1])])
-        stamps, frames = batch.stamps_ns[good], batch.frame_ids[good]
-        reject = self._values['wrong_frame_policy'] == 'reject'
+        samples = self._intake.prepare(msgs, self.config.inversion, self._values)
+        if samples is None:
+            return None
+        if self._first_stamp_ns < 0:
+            self._first_stamp_ns = int(samples.stamps_ns[0])
+        self._use_reported_noise(samples.reported_variance)
         try:
-            update = self.stream.push(stamps, vertical(batch.accel[good], cfg.accel_axis),
-                                      self._speed_for(int(stamps[-1])),
-                                      frames if reject else None)
+            update = self.stream.push(samples.stamps_ns, samples.accel_up, samples.speed_mps,
+                                      samples.frame_ids)
         except Exception as exc:  # the node must survive anything the core trips on
             self._counts['internal_error'] += 1
             self.get_logger().error(f'uncertainty stream failed, filters reset: {exc!r}',
@@ -201,33 +209,24 @@ class UncertaintyNode(Node):
             return None
         self._publish(update.band)
         for record in update.windows:
-            self._gsa_pub.publish(sensitivity_message(record, self._values['hardware_id']))
+            self._pubs[1].publish(sensitivity_message(record, self._values['hardware_id']))
             last = record.compute_s * 1e3
             self._window_ms = (last, max(self._window_ms[1], last))
         self._counts['windows'] += len(update.windows)
         return update.band
 
-    def _use_reported_noise(self, reported: np.ndarray) -> None:
+    def _use_reported_noise(self, variance: float | None) -> None:
         """kalman: the first IMU-reported variance replaces noise_std_mps2 before any sample,
         as in irregularity_node."""
-        reported = reported[np.isfinite(reported)]
         if self.config.inversion.method == 'kalman' and self._noise_variance is None and \
-                reported.size and self.stream.counters.get('accepted', 0) == 0:
-            self._noise_variance = float(reported[0])
+                variance is not None and self.stream.counters.get('accepted', 0) == 0:
+            self._noise_variance = variance
             self._rebuild()
 
     def _rebuild(self) -> None:
         self._retired.update(self.stream.counters)
         self.stream = UncertaintyStream(self.config, self.vehicle, self.dists,
                                         self._noise_variance)
-
-    def _speed_for(self, stamp_ns: int) -> float:
-        """Newest odometry speed if fresh (m/s), else the speed_mps parameter."""
-        odom = self._odom
-        fresh = odom is not None and \
-            stamp_ns - odom[0] <= self._values['odom_timeout_s'] * NS_PER_S
-        self._speed = odom[1] if fresh else float(self._values['speed_mps'])
-        return self._speed
 
     def _publish(self, band: Band) -> None:
         """One Vector3Stamped per band sample, stamped with its IMU stamp."""
@@ -236,36 +235,20 @@ class UncertaintyNode(Node):
         for s, ns, lo, mid, hi in zip(sec.tolist(), nsec.tolist(), band.lower_m.tolist(),
                                       band.mean_m.tolist(), band.upper_m.tolist(), strict=True):
             stamp.sec, stamp.nanosec, vec.x, vec.y, vec.z = s, ns, lo, mid, hi
-            self._band_pub.publish(msg)
+            self._pubs[0].publish(msg)
         self._counts['published'] += len(band)
-
-    def destroy_node(self) -> None:
-        """Destroy the helper reader node too."""
-        self._reader.destroy_node()
-        super().destroy_node()
 
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
         """Cumulative counts by reason over the node's life."""
-        return dict(self._retired + Counter(self.stream.counters) + self._counts)
+        live = [] if self.stream is None else [Counter(self.stream.counters)]
+        intake = [] if self._intake is None else [self._intake.counts]
+        return dict(sum((*live, *intake, self._counts), self._retired.copy()))
 
     def _report_input(self, elapsed_s: float) -> Report:
         totals = self.counters()
-        delta = self._deltas['imu'](totals)
-        reasons = (*REASONS, 'malformed')
-        values: dict[str, object] = {'topic': self._imu_sub.topic_name,
-                                     'rate_hz': delta.get('received', 0) / elapsed_s}
-        for key in ('received', 'accepted', 'gap', 'reset', 'bridged', 'odom_malformed'):
-            values[key] = totals.get(key, 0)
-        values['rejected'] = sum(totals.get(r, 0) for r in reasons)
-        values.update({f'rejected_{r}': totals.get(r, 0) for r in reasons})
-        recent = {r: delta[r] for r in (*reasons, 'gap') if delta.get(r, 0)}
-        if delta.get('received', 0) == 0:
-            return Report(ERROR, 'no IMU input', values)
-        if recent:
-            return Report(WARN, 'bad input in the last period: '
-                          + ', '.join(f'{k} {v}' for k, v in recent.items()), values)
-        return Report(OK, 'receiving', values)
+        return self._intake.report(totals, self._deltas['imu'](totals), elapsed_s,
+                                   self.config.inversion.frame_id)
 
     def _report_uncertainty(self, elapsed_s: float) -> Report:
         now = (time.monotonic(), time.process_time())
@@ -279,8 +262,9 @@ class UncertaintyNode(Node):
             'band_delay_samples': self.stream.delay_samples,
             'published': totals.get('published', 0), 'windows': totals.get('windows', 0),
             'window_compute_ms': self._window_ms[0], 'window_compute_max_ms': self._window_ms[1],
-            'cpu_fraction_of_one_core': cpu, 'speed_mps': self._speed,
-            'internal_errors': totals.get('internal_error', 0)}
+            'cpu_fraction_of_one_core': cpu, 'speed_mps': self._intake.speed_mps,
+            'internal_errors': totals.get('internal_error', 0),
+            'first_stamp_ns': self._first_stamp_ns, **self.lifecycle_values()}
         if delta.get('internal_error', 0):
             return Report(ERROR, 'the stream failed and was reset', values)
         if delta.get('received', 0) == 0:
@@ -290,23 +274,7 @@ class UncertaintyNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until SIGINT/SIGTERM; exit code 0, or 2 with one line for bad parameters."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = UncertaintyNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except ConfigError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run(UncertaintyNode, args)
 
 
 if __name__ == '__main__':
