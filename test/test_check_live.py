@@ -1,0 +1,109 @@
+"""railgsa check end to end: the simulator node, irregularity_node and uncertainty_node as
+processes; all good -> exit 0; a wrong sensor preset or the nodes gone -> exit 1 with the
+failing lines; usage errors -> exit 2 with one line."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+from typing import Any
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+REPO = Path(__file__).resolve().parents[1]
+SPEED = 40.0  # m/s; the nodes' band designed at this speed: about 1.8 s of delay
+#: light nodes: the band starts early, no sensitivity windows close during the test
+NODE_ARGS = ['-p', f'min_design_speed_mps:={SPEED}']
+UNCERTAINTY_ARGS = [*NODE_ARGS, '-p', 'rule:=pem3', '-p', 'order:=1', '-p',
+                    'window_length:=1000.0']
+
+
+def check(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    """``railgsa check ARGS`` as a process in this session's ROS domain."""
+    return subprocess.run([sys.executable, '-m', 'railgsa_ros.cli.main', 'check', *args],
+                          capture_output=True, text=True, timeout=timeout, cwd=REPO,
+                          env=dict(os.environ))
+
+
+def lines(stdout: str) -> dict[str, str]:
+    """Checklist item name -> status from the text output."""
+    out = {}
+    for line in stdout.splitlines():
+        status, _, rest = line.partition('  ')
+        if status in ('PASS', 'WARN', 'FAIL'):
+            out[rest.split('  ')[0].strip()] = status
+    return out
+
+
+@pytest.fixture
+def first_band(ros_context: Any, spin: Callable, wait_for: Callable) -> Callable[[], bool]:
+    """``first_band()``: waits until track/irregularity_band publishes (True) or 60 s pass."""
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.node import Node
+
+    from railgsa_ros.nodes.qos import sensor_qos
+
+    got: list[int] = []
+    node = spin(Node('check_test', context=ros_context))
+    node.create_subscription(Vector3Stamped, 'track/irregularity_band',
+                             lambda _m: got.append(1), sensor_qos(10))
+    return lambda: wait_for(lambda: bool(got), 60.0)
+
+
+def test_check_on_a_live_system(start_node: Callable, first_band: Callable) -> None:
+    sim = start_node('railgsa_ros.nodes.imu_sim_node',
+                     ['-p', 'duration_s:=120.0', '-p', f'speed_mps:={SPEED}', '-p', 'seed:=4'])
+    nodes = [start_node('railgsa_ros.nodes.irregularity_node', NODE_ARGS),
+             start_node('railgsa_ros.nodes.uncertainty_node', UNCERTAINTY_ARGS)]
+    assert first_band(), [n.stop().stderr for n in (sim, *nodes)]
+
+    good = check('--duration', '4')
+    assert good.returncode == 0, good.stdout + good.stderr
+    assert lines(good.stdout) == {
+        'imu rate': 'PASS', 'stamp jitter': 'PASS', 'stamp order': 'PASS',
+        'gravity axis': 'PASS', 'noise density': 'PASS', 'odometry': 'PASS',
+        'node irregularity_node': 'PASS', 'output track/irregularity': 'PASS',
+        'node uncertainty_node': 'PASS', 'output track/irregularity_band': 'PASS'}, good.stdout
+    assert good.stdout.splitlines()[-1] == 'result: PASS (0 failed, 0 warnings)'
+
+    wrong = check('--duration', '3', '--sensor', 'bmi088', '--json')
+    assert wrong.returncode == 1, wrong.stdout + wrong.stderr
+    doc = json.loads(wrong.stdout)
+    failed = {i['name']: i for i in doc['items'] if i['status'] == 'FAIL'}
+    assert doc['status'] == 'FAIL' and set(failed) == {'imu rate', 'noise density'}
+    assert failed['imu rate']['expected'] == '400 Hz +- 2%'
+    assert float(failed['imu rate']['value'].split()[0]) == pytest.approx(1000.0, rel=1e-3)
+    assert 'quieter than bmi088' in failed['noise density']['hint']
+
+    for node in nodes:
+        assert node.stop(signal.SIGINT).rc == 0
+    gone = check('--duration', '2')
+    assert gone.returncode == 1, gone.stdout + gone.stderr
+    status = lines(gone.stdout)
+    assert {k for k, v in status.items() if v == 'FAIL'} == {
+        'node irregularity_node', 'output track/irregularity', 'node uncertainty_node',
+        'output track/irregularity_band'}, gone.stdout
+    assert 'FAIL  node irregularity_node' in gone.stdout and 'not in the graph' in gone.stdout
+    assert sim.stop(signal.SIGINT).rc == 0
+
+
+@pytest.mark.parametrize(('args', 'message'), [
+    (['--duration', '0'], 'error: --duration: expected a number in (0, 3600], got 0.0\n'),
+    (['--duration', 'nan'], 'error: --duration: expected a number in (0, 3600], got nan\n'),
+    (['--rate', '-5'], 'error: --rate: expected a number in (0, inf], got -5.0\n'),
+])
+def test_usage_errors_exit_2_with_one_line(args: list[str], message: str) -> None:
+    result = check(*args)
+    assert (result.returncode, result.stdout, result.stderr) == (2, '', message)
+
+
+def test_unknown_preset_is_an_argparse_error() -> None:
+    result = check('--sensor', 'mpu6050')
+    assert result.returncode == 2 and "invalid choice: 'mpu6050'" in result.stderr
