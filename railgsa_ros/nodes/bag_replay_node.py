@@ -11,6 +11,10 @@ ROS installation cannot import are skipped with a warning. The node exits when t
 
 from __future__ import annotations
 
+import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal from here on)
+
+# isort: split
+
 from collections.abc import Mapping
 import importlib
 import sys

@@ -45,11 +45,16 @@ class ManagedNode(Node):
         super().__init__(name, **kwargs)
         self.config_error: str | None = None
         self.activations = 0  #: transitions to active in this process
+        self._autostarting = False  # autostart reports a failed configure itself (exit 2)
 
     def autostart(self) -> None:
         """With parameter autostart (default true): ``start()``."""
         if declare(self, (AUTOSTART,))['autostart']:
-            self.start()
+            self._autostarting = True
+            try:
+                self.start()
+            finally:
+                self._autostarting = False
 
     def start(self) -> None:
         """Configure then activate; ConfigError with the reason if either fails."""
@@ -69,7 +74,8 @@ class ManagedNode(Node):
             self.configure()
         except ConfigError as exc:
             self.config_error = str(exc)
-            self.get_logger().error(f'configure failed: {exc}')
+            if not self._autostarting:
+                self.get_logger().error(f'configure failed: {exc}')
             self.release()
             return FAILURE
         self.config_error = None
@@ -113,7 +119,11 @@ class ManagedNode(Node):
 
 def run(factory: Callable[[], ManagedNode], args: list[str] | None = None) -> int:
     """Build the node and spin until SIGINT/SIGTERM: exit code 0, or 2 with one line
-    ``error: <reason>`` when autostart fails on bad parameters."""
+    ``error: <reason>`` when autostart fails on bad parameters.
+
+    rclpy's signal handler shuts the context down: whatever that makes fail while the node is
+    being built (RCLError 'context is invalid', a failed configure) is a stop request, exit 0.
+    """
     node = None
     try:
         rclpy.init(args=args)
@@ -122,10 +132,15 @@ def run(factory: Callable[[], ManagedNode], args: list[str] | None = None) -> in
         executor.add_node(node)
         executor.spin()
     except ConfigError as exc:
+        if not rclpy.ok():  # a stop request shut the context down while configuring
+            return 0
         print(f'error: {exc}', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():  # a genuine failure, not a stop request while the node was built
+            raise
     finally:
         if node is not None:
             node.destroy_node()

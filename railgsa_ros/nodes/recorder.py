@@ -10,6 +10,10 @@ SIGINT/SIGTERM finish the bag (exit 0); a write error keeps the finished files r
 
 from __future__ import annotations
 
+import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal from here on)
+
+# isort: split
+
 from collections.abc import Mapping
 from functools import partial
 import sys

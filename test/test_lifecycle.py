@@ -1,0 +1,139 @@
+"""Managed lifecycle of irregularity_node and uncertainty_node (in-process), and SIGINT/SIGTERM at
+start-up moments of every node process (exit 0, no traceback)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import signal
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline
+from test_irregularity_node import run as run
+
+pytestmark = pytest.mark.ros
+
+
+def _overrides(**params: Any) -> list:
+    from rclpy.parameter import Parameter
+
+    return [Parameter(k, value=v) for k, v in {**PARAMS, **params}.items()]
+
+
+def _state(node: Any) -> str:
+    return node._state_machine.current_state[1]
+
+
+def test_transitions_walk_the_node_through_its_states(run: Any, ros_context: Any) -> None:
+    from rclpy.lifecycle import TransitionCallbackReturn as R
+
+    from railgsa_ros.nodes.irregularity_node import IrregularityNode
+
+    node = IrregularityNode(context=ros_context, parameter_overrides=_overrides(autostart=False))
+    try:
+        assert _state(node) == 'unconfigured' and not node.has_parameter('method')
+        assert node.count_subscribers('track/irregularity') == 0
+        assert node.trigger_configure() == R.SUCCESS and _state(node) == 'inactive'
+        assert node.count_publishers('track/irregularity') == 1
+        assert node.count_subscribers('imu/data') == 0          # inactive: no input
+        stamps, acc = run.stamps_ns[:3000] + T0_NS, run.accel[:3000, 2]
+        assert node.process(imu_msgs(stamps, acc)) is None       # nothing processed
+        assert node.trigger_activate() == R.SUCCESS and _state(node) == 'active'
+        assert node.count_subscribers('imu/data') == 1
+        out = node.process(imu_msgs(stamps, acc))
+        ref = offline(stamps, acc)
+        np.testing.assert_array_equal(out.stamps_ns, ref.stamps_ns)
+        np.testing.assert_array_equal(out.u_m, ref.u_m)
+        assert node.trigger_deactivate() == R.SUCCESS and _state(node) == 'inactive'
+        assert node.count_subscribers('imu/data') == 0
+        assert node.trigger_cleanup() == R.SUCCESS and _state(node) == 'unconfigured'
+        assert node.count_publishers('track/irregularity') == 0
+        assert node.counters()['accepted'] == 3000              # kept across the cleanup
+        assert node.trigger_configure() == R.SUCCESS and node.trigger_activate() == R.SUCCESS
+        assert node.activations == 2
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize('module,cls', [('irregularity_node', 'IrregularityNode'),
+                                        ('uncertainty_node', 'UncertaintyNode')])
+def test_bad_parameters_keep_the_node_unconfigured(module: str, cls: str,
+                                                   ros_context: Any) -> None:
+    import importlib
+
+    from rclpy.lifecycle import TransitionCallbackReturn as R
+
+    node_cls = getattr(importlib.import_module(f'railgsa_ros.nodes.{module}'), cls)
+    node = node_cls(context=ros_context,
+                    parameter_overrides=_overrides(autostart=False, method='banana'))
+    try:
+        assert node.trigger_configure() == R.FAILURE
+        assert _state(node) == 'unconfigured'
+        assert 'method' in node.config_error and 'banana' in node.config_error
+    finally:
+        node.destroy_node()
+
+
+def test_change_state_service_activates_a_node_started_without_autostart(
+        ros_context: Any, wait_for: Callable, start_node: Callable) -> None:
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    proc = start_node('railgsa_ros.nodes.irregularity_node', ['-p', 'autostart:=false'])
+    client = Node('lifecycle_client', context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    get = client.create_client(GetState, 'irregularity_node/get_state')
+    change = client.create_client(ChangeState, 'irregularity_node/change_state')
+    assert get.wait_for_service(90.0) and change.wait_for_service(10.0), proc.stop().stderr
+
+    def call(cli: Any, req: Any) -> Any:
+        future = cli.call_async(req)
+        rclpy.spin_until_future_complete(client, future, executor, timeout_sec=20.0)
+        assert future.done()
+        return future.result()
+    assert call(get, GetState.Request()).current_state.label == 'unconfigured'
+    assert client.count_subscribers('imu/data') == 0
+    for tid in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
+        assert call(change, ChangeState.Request(transition=Transition(id=tid))).success
+    assert call(get, GetState.Request()).current_state.label == 'active'
+    assert wait_for(lambda: client.count_subscribers('imu/data') == 1, 10.0)
+    result = proc.stop(signal.SIGTERM)
+    assert (result.rc, 'Traceback' in result.stderr) == (0, False), result.stderr
+
+
+#: seconds after the node module's first line ran (its handlers are in place): during the heavy
+#: imports, rclpy.init, building the model, after readiness. Before that first line (about 60 ms
+#: of interpreter start-up) Python's own defaults apply (docs/reliability.md).
+MOMENTS = (0.0, 0.2, 0.5, 2.5)
+
+
+def _catches_sigterm(pid: int) -> bool:
+    """Whether process ``pid`` has a SIGTERM handler (SigCgt in /proc/<pid>/status)."""
+    try:
+        status = open(f'/proc/{pid}/status').read()  # noqa: SIM115
+    except FileNotFoundError:
+        return False
+    mask = int(next(ln for ln in status.splitlines() if ln.startswith('SigCgt:')).split()[1], 16)
+    return bool(mask >> (signal.SIGTERM - 1) & 1)
+
+
+@pytest.mark.parametrize('module', ['irregularity_node', 'uncertainty_node', 'recorder'])
+def test_signal_at_any_start_up_moment_exits_0(module: str, start_node: Callable,
+                                               wait_for: Callable, tmp_path: Any) -> None:
+    args = {'recorder': lambda i: ['-p', f'out:={tmp_path}/bag{i}', '-p', 'topics:=[/x]']}.get(
+        module, lambda i: [])
+    sigs = (signal.SIGINT, signal.SIGTERM) * 2
+    procs = [start_node(f'railgsa_ros.nodes.{module}', args(i)) for i in range(len(MOMENTS))]
+    for proc, moment, sig in zip(procs, MOMENTS, sigs, strict=True):
+        assert wait_for(lambda p=proc: _catches_sigterm(p.proc.pid), 30.0, 0.001)
+        time.sleep(moment)
+        proc.proc.send_signal(sig)
+    for proc, moment, sig in zip(procs, MOMENTS, sigs, strict=True):
+        result = proc.stop(sig)
+        assert result.rc == 0, (moment, sig, result.stderr)
+        assert 'Traceback' not in result.stderr and 'Error' not in result.stderr, result.stderr
