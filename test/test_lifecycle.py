@@ -84,7 +84,9 @@ def test_change_state_service_activates_a_node_started_without_autostart(
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
-    proc = start_node('railgsa_ros.nodes.irregularity_node', ['-p', 'autostart:=false'])
+    params = {**PARAMS, 'autostart': False}
+    proc = start_node('railgsa_ros.nodes.irregularity_node',
+                      [a for k, v in params.items() for a in ('-p', f'{k}:={str(v).lower()}')])
     client = Node('lifecycle_client', context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     get = client.create_client(GetState, 'irregularity_node/get_state')
@@ -93,7 +95,7 @@ def test_change_state_service_activates_a_node_started_without_autostart(
 
     def call(cli: Any, req: Any) -> Any:
         future = cli.call_async(req)
-        rclpy.spin_until_future_complete(client, future, executor, timeout_sec=20.0)
+        rclpy.spin_until_future_complete(client, future, executor, timeout_sec=60.0)
         assert future.done()
         return future.result()
     assert call(get, GetState.Request()).current_state.label == 'unconfigured'
