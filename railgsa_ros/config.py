@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +12,12 @@ from railgsa_ros.errors import ConfigError
 
 
 def load_yaml(path: str | Path) -> Any:
-    """Parse a YAML file; missing, unreadable or malformed files raise ConfigError naming it."""
+    """Parse a YAML file; missing, unreadable or malformed files raise ConfigError naming it.
+
+    Malformed includes what PyYAML lets escape as other exceptions: an impossible date
+    (``2020-13-45``: ValueError), an integer of more than 4300 digits (ValueError), nesting
+    deeper than Python's recursion limit (RecursionError).
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding='utf-8')
@@ -25,6 +31,18 @@ def load_yaml(path: str | Path) -> Any:
         mark = getattr(exc, 'problem_mark', None)
         where = f' (line {mark.line + 1})' if mark is not None else ''
         raise ConfigError(f'{path}: invalid YAML{where}') from None
+    except RecursionError:
+        raise ConfigError(f'{path}: invalid YAML (nested too deeply)') from None
+    except (ValueError, TypeError, OverflowError) as exc:
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ConfigError(f'{path}: invalid YAML value ({reason})') from None
+
+
+def key_list(keys: Iterable[Any]) -> str:
+    """Mapping keys for a one-line message: sorted, comma-separated; keys that are not
+    printable one-line strings (numbers, None, text with control characters) as repr."""
+    return ', '.join(sorted(k if isinstance(k, str) and k.isprintable() else repr(k)
+                            for k in keys))
 
 
 def ros_parameters(doc: Any, node_name: str) -> dict[str, Any]:

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from railgsa_ros.config import key_list, load_yaml
 from railgsa_ros.errors import ConfigError
 
 PARAM_NAMES = ('m_s', 'm_us', 'k_s', 'k_us', 'c')
@@ -48,10 +50,14 @@ class VehicleParams:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ConfigError(f'vehicle.{f.name}: expected a number in {PARAM_UNITS[f.name]}, '
                                   f'got {value!r}')
-            if not np.isfinite(value) or value <= 0:
+            try:
+                number = float(value)
+            except OverflowError:  # an int beyond the float range
+                number = math.inf
+            if not math.isfinite(number) or number <= 0:
                 raise ConfigError(f'vehicle.{f.name}: must be a positive finite number in '
-                                  f'{PARAM_UNITS[f.name]}, got {value!r}')
-            object.__setattr__(self, f.name, float(value))
+                                  f'{PARAM_UNITS[f.name]}, got {number!r}')
+            object.__setattr__(self, f.name, number)
 
     def as_array(self) -> np.ndarray:
         """Return the parameters as a float array of shape (5,), ordered as PARAM_NAMES."""
@@ -66,9 +72,9 @@ class VehicleParams:
         """Build from a mapping with every field present; unknown or missing keys are errors."""
         if not isinstance(data, Mapping):
             raise ConfigError(f'{source}: expected a mapping of {", ".join(PARAM_NAMES)}')
-        unknown = sorted(set(data) - set(PARAM_NAMES))
+        unknown = set(data) - set(PARAM_NAMES)
         if unknown:
-            raise ConfigError(f'{source}: unknown field(s) {", ".join(map(str, unknown))}; '
+            raise ConfigError(f'{source}: unknown field(s) {key_list(unknown)}; '
                               f'expected {", ".join(PARAM_NAMES)}')
         missing = [n for n in PARAM_NAMES if n not in data]
         if missing:
@@ -78,13 +84,14 @@ class VehicleParams:
 
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Load ``vehicle:`` parameters from a YAML file such as ``config/vehicle.yaml``."""
-    from railgsa_ros.config import load_yaml
-
     doc = load_yaml(path)
     section = doc.get('vehicle') if isinstance(doc, dict) else None
     if section is None:
         raise ConfigError(f'{path}: missing top-level "vehicle:" section')
-    return VehicleParams.from_mapping(section, source=f'{path}: vehicle')
+    try:
+        return VehicleParams.from_mapping(section)
+    except ConfigError as exc:
+        raise ConfigError(f'{path}: {exc}') from None
 
 
 def as_theta(params: VehicleParams | np.ndarray | Mapping[str, float]) -> np.ndarray:

@@ -7,8 +7,6 @@ import math
 import sys
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.health import checklist, exit_code, format_items, items_json
-from railgsa_ros.imu import PRESETS
 
 MAX_DURATION_S = 3600.0
 
@@ -30,8 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='odometry topic (default odom)')
     p.add_argument('--duration', type=float, default=10.0, metavar='S',
                    help='seconds to listen (default 10)')
-    p.add_argument('--sensor', default='adxl355', choices=tuple(PRESETS),
-                   help='configured sensor preset (default adxl355)')
+    p.add_argument('--sensor', default='adxl355', metavar='PRESET',
+                   help='configured sensor preset: ideal, adxl355 or bmi088 (default adxl355)')
     p.add_argument('--rate', type=float, default=None, metavar='HZ',
                    help="expected IMU rate (default: the preset's output rate)")
     p.add_argument('--json', action='store_true', help='print the checklist as JSON')
@@ -45,11 +43,17 @@ def _positive(name: str, value: float | None, high: float = math.inf) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Collect, judge, print; 0 when nothing failed, else 1."""
+    from railgsa_ros.health import checklist, exit_code, format_items, items_json
+    from railgsa_ros.imu import imu_spec
+
     _positive('--duration', args.duration, MAX_DURATION_S)
     _positive('--rate', args.rate)
+    try:
+        spec = imu_spec(args.sensor)
+    except ConfigError as exc:
+        raise ConfigError(f'--{exc}') from None
     from railgsa_ros.nodes.health_check import collect
 
-    spec = PRESETS[args.sensor]
     if not args.json:
         print(f'railgsa check: listening {args.duration:g} s to {args.imu_topic} '
               f'({args.sensor}), {args.odom_topic} and the nodes ...', file=sys.stderr)

@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from railgsa_ros.config import load_yaml, ros_parameters
+from railgsa_ros.config import key_list, load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.feedback import UNSUPPORTED, check_gain
 
@@ -95,9 +95,9 @@ class InversionConfig:
                      ) -> InversionConfig:
         """Defaults overridden by ``data``; unknown names are a ConfigError naming ``source``."""
         names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
+        unknown = set(data) - names
         if unknown:
-            raise ConfigError(f'{source}: unknown parameter(s) {", ".join(unknown)}')
+            raise ConfigError(f'{source}: unknown parameter(s) {key_list(unknown)}')
         try:
             return cls(**dict(data))
         except ConfigError as exc:
@@ -125,6 +125,9 @@ def _check(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
         number = float(value)
     except (TypeError, ValueError):
         raise ConfigError(f'{name}: expected a number, got {value!r}') from None
+    except OverflowError:  # an int beyond the float range (its repr may be too long to print)
+        raise ConfigError(f'{name}: expected a finite number, got an integer beyond the float '
+                          'range') from None
     if isinstance(value, bool) or not math.isfinite(number):
         raise ConfigError(f'{name}: expected a finite number, got {value!r}')
     if name == 'gain':

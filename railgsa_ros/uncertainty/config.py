@@ -14,7 +14,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from railgsa_ros.config import load_yaml, ros_parameters
+from railgsa_ros.config import key_list, load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.uq.germ import GERMS
@@ -75,9 +75,9 @@ class UncertaintyConfig:
         """Defaults overridden by ``data`` (uncertainty and inversion names together)."""
         own = {f.name for f in fields(cls)} - {'inversion'}
         inv = {f.name for f in fields(InversionConfig)}
-        unknown = sorted(set(data) - own - inv)
+        unknown = set(data) - own - inv
         if unknown:
-            raise ConfigError(f'{source}: unknown parameter(s) {", ".join(unknown)}')
+            raise ConfigError(f'{source}: unknown parameter(s) {key_list(unknown)}')
         inversion = InversionConfig.from_mapping({k: v for k, v in data.items() if k in inv},
                                                  source)
         try:
@@ -101,6 +101,9 @@ def _check(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
         number = float(value)
     except (TypeError, ValueError):
         raise ConfigError(f'{name}: expected a number, got {value!r}') from None
+    except OverflowError:  # an int beyond the float range (its repr may be too long to print)
+        raise ConfigError(f'{name}: expected a finite number, got an integer beyond the float '
+                          'range') from None
     low, high = meta['bounds']
     if isinstance(value, bool) or not math.isfinite(number) or not low <= number <= high:
         raise ConfigError(f'{name}: {value!r} is not a number in [{low:g}, {high:g}]')

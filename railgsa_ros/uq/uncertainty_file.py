@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from railgsa_ros.config import load_yaml
+from railgsa_ros.config import key_list, load_yaml
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.uq.distributions import (
     Distribution,
@@ -56,18 +56,19 @@ def _number(value: Any) -> Any:
 
 def parse_parameter(name: str, spec: Any) -> Distribution:
     """One entry of ``parameters:``; errors name ``parameters.<name>.<field>``."""
-    where = f'parameters.{name}'
+    where = f'parameters.{key_list([name])}'
     if name not in PARAM_NAMES:
         raise ConfigError(f'{where}: unknown parameter; expected any of {", ".join(PARAM_NAMES)}')
-    if not isinstance(spec, dict) or spec.get('dist') not in FIELDS:
+    dist_name = spec.get('dist') if isinstance(spec, dict) else None
+    if not isinstance(dist_name, str) or dist_name not in FIELDS:
         raise ConfigError(f'{where}.dist: expected one of {", ".join(FIELDS)}')
-    cls, required, optional = FIELDS[spec['dist']]
-    unknown = sorted(set(spec) - {'dist', *required, *optional})
+    cls, required, optional = FIELDS[dist_name]
+    unknown = set(spec) - {'dist', *required, *optional}
     missing = [f for f in required if f not in spec]
     if unknown or missing:
-        field = (unknown or missing)[0]
+        field = key_list(unknown).split(', ')[0] if unknown else missing[0]
         raise ConfigError(f'{where}.{field}: {"unknown" if unknown else "missing"} field for '
-                          f'dist {spec["dist"]} (fields: {", ".join(required + optional)})')
+                          f'dist {dist_name} (fields: {", ".join(required + optional)})')
     kwargs = {f: _number(spec[f]) for f in (*required, *optional) if f in spec}
     if cls is Normal:
         kwargs.setdefault('lower', 0.0)
@@ -75,7 +76,7 @@ def parse_parameter(name: str, spec: Any) -> Distribution:
         dist = cls(**kwargs)
     except ConfigError as exc:
         raise ConfigError(f'{where}.{exc}') from None
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ConfigError(f'{where}: invalid values {kwargs!r}') from None
     low = dist.from_xi(-40.0)
     if not low >= 0.0:
