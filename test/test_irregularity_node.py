@@ -447,7 +447,7 @@ def test_fuzzed_messages_never_raise_nor_publish_nan(ros_context: Any) -> None:
     check()
     totals = node.counters()
     assert totals['received'] == sum(totals.get(k, 0) for k in (
-        'accepted', 'malformed', 'nan', 'saturated', 'out_of_order', 'duplicate',
+        'accepted', 'malformed', 'nan', 'saturated', 'stuck', 'out_of_order', 'duplicate',
         'wrong_frame'))  # every message accounted for exactly once
     assert totals.get('internal_error', 0) == 0 and totals.get('published', 0) > 0
     node.destroy_node()

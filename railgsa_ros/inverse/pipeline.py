@@ -104,12 +104,15 @@ class InversionPipeline:
     """Streaming irregularity reconstruction; see the module docstring and docs/inversion.md.
 
     ``vehicle``: VehicleParams, theta (5,) or a bank theta (P, 5); ``noise_variance``: IMU
-    accelerometer variance ((m/s^2)^2) for the Kalman method, else ``config.noise_std_mps2``^2.
+    accelerometer variance ((m/s^2)^2) for the Kalman method, else ``config.noise_std_mps2``^2;
+    ``start_chainage_m``: chainage of the first sample (m; a rebuilt pipeline continues its
+    predecessor's); ``stuck_s``, ``backward_reset_s``: see :class:`InputSanitizer`.
     """
 
     def __init__(self, config: InversionConfig | None = None,
                  vehicle: VehicleParams | np.ndarray | None = None,
-                 noise_variance: float | None = None) -> None:
+                 noise_variance: float | None = None, *, start_chainage_m: float = 0.0,
+                 stuck_s: float = 0.0, backward_reset_s: float = 1.0) -> None:
         cfg = self.config = config if config is not None else InversionConfig()
         theta = as_theta(vehicle if vehicle is not None else VehicleParams())
         self._squeeze = theta.ndim == 1
@@ -117,7 +120,8 @@ class InversionPipeline:
         self.dt = 1.0 / cfg.rate_hz
         self.sanitizer = InputSanitizer(cfg.rate_hz, cfg.gap_factor, cfg.gap_policy,
                                         cfg.max_bridge_s, cfg.saturation_mps2,
-                                        cfg.saturation_margin_mps2, cfg.frame_id)
+                                        cfg.saturation_margin_mps2, cfg.frame_id,
+                                        stuck_s=stuck_s, backward_reset_s=backward_reset_s)
         self._counters: Counter[str] = Counter()
         self.stability: Stability | None = None
         self._stage: FeedbackInverse | KalmanInverse | None = None
@@ -141,15 +145,21 @@ class InversionPipeline:
             self.switch_period = self._fir.switch_period
             self._design_speed = cfg.min_design_speed_mps
         self._chain: tuple[int, float, float] | None = None  # last stamp, chainage, speed
+        self.start_chainage_m = float(start_chainage_m)  #: chainage of the first sample, m
         self._offline: list[tuple[np.ndarray, ...]] = []
         self._start_segment()
 
     # ----------------------------------------------------------------- public interface
     @property
     def counters(self) -> dict[str, int]:
-        """Counts by reason: rejected samples (nan, wrong_frame, saturated, out_of_order,
-        duplicate), gap, reset, bridged, accepted, emitted, redesign."""
+        """Counts by reason: rejected samples (nan, wrong_frame, saturated, stuck, out_of_order,
+        duplicate), gap, reset, time_reset, bridged, accepted, emitted, redesign."""
         return dict(self.sanitizer.counters + self._counters)
+
+    @property
+    def chainage_m(self) -> float:
+        """Chainage of the newest sample pushed (m); the start chainage before any."""
+        return self._chain[1] if self._chain is not None else self.start_chainage_m
 
     @property
     def stability_margin(self) -> float:
@@ -272,11 +282,13 @@ class InversionPipeline:
         return self._advance(a_s, stamps, chain, speed, emit)
 
     def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
-        """Trapezoidal integral of speed over the stamps, continued across calls (m)."""
-        t0, c0, v0 = self._chain if self._chain is not None else (stamps[0], 0.0, speed[0])
+        """Trapezoidal integral of speed over the stamps, continued across calls (m); time going
+        backwards (a time reset) adds no distance."""
+        t0, c0, v0 = self._chain if self._chain is not None else \
+            (stamps[0], self.start_chainage_m, speed[0])
         t = np.concatenate([[t0], stamps])
         v = np.concatenate([[v0], speed])
-        chain = c0 + np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t) * 1e-9)
+        chain = c0 + np.cumsum(0.5 * (v[1:] + v[:-1]) * np.maximum(np.diff(t), 0) * 1e-9)
         self._chain = (int(stamps[-1]), float(chain[-1]), float(speed[-1]))
         return chain
 

@@ -1,11 +1,15 @@
 """Input sanitiser: classify every IMU sample before inversion; never raises on data.
 
 Rejected samples are counted by reason: ``nan`` (non-finite acceleration or speed),
-``wrong_frame``, ``saturated`` (|a| >= range - margin), ``out_of_order`` and ``duplicate`` (stamp
-below or equal to the newest accepted one). Accepted samples more than ``gap_factor`` nominal
-periods apart form a ``gap``: with policy ``reset`` the pipeline restarts its filters there; with
-``bridge`` a gap up to ``max_bridge_s`` is filled with synthetic samples on the nominal period,
-linearly interpolated (they produce no output), and a longer gap resets.
+``wrong_frame``, ``saturated`` (|a| >= range - margin), ``stuck`` (the same value for longer than
+``stuck_s``: a frozen sensor; off when 0), ``out_of_order`` and ``duplicate`` (stamp below or equal
+to the newest accepted one). Time going backwards by more than ``backward_reset_s`` (a looped bag,
+a simulated-clock reset) is a new stream: counted as ``time_reset``, the filters restart at that
+sample instead of rejecting everything until the stamps pass the old maximum. Accepted samples
+more than ``gap_factor`` nominal periods apart form a ``gap``: with policy ``reset`` the pipeline
+restarts its filters there; with ``bridge`` a gap up to ``max_bridge_s`` is filled with synthetic
+samples on the nominal period, linearly interpolated (they produce no output), and a longer gap
+resets.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-REASONS = ('nan', 'wrong_frame', 'saturated', 'out_of_order', 'duplicate')
+REASONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
 
 
 def frame_mask(frame_ids: np.ndarray | None, expected: str) -> np.ndarray | None:
@@ -38,23 +42,35 @@ class Clean:
 
 
 class InputSanitizer:
-    """Streaming classifier; ``counters`` holds rejected counts by reason plus gaps and resets."""
+    """Streaming classifier; ``counters`` holds rejected counts by reason plus gaps, resets and
+    time resets. ``stuck_s`` (s, 0 = off) and ``backward_reset_s`` (s) as in the module text."""
 
     def __init__(self, rate_hz: float, gap_factor: float = 3.0, gap_policy: str = 'reset',
                  max_bridge_s: float = 0.05, saturation_mps2: float = 0.0,
-                 saturation_margin_mps2: float = 0.0, frame_id: str = '') -> None:
+                 saturation_margin_mps2: float = 0.0, frame_id: str = '', *,
+                 stuck_s: float = 0.0, backward_reset_s: float = 1.0) -> None:
         self.period_ns = 1e9 / rate_hz
         self.gap_ns = gap_factor * self.period_ns
         self.gap_policy = gap_policy
         self.max_bridge_ns = max_bridge_s * 1e9
         self.limit = saturation_mps2 - saturation_margin_mps2 if saturation_mps2 > 0 else np.inf
         self.frame_id = frame_id
+        self.set_limits(stuck_s, backward_reset_s)
         self.counters: Counter[str] = Counter()
         self._last: tuple[int, float, float] | None = None  # stamp, accel, speed of last accepted
+        self._newest = np.iinfo(np.int64).min  # newest stamp seen (any sample)
+        self._run: tuple[float, int] = (np.nan, 0)  # value and first stamp of the current run
+
+    def set_limits(self, stuck_s: float, backward_reset_s: float) -> None:
+        """Stuck duration (s, 0 = off) and backward time jump (s) that starts a new stream."""
+        self.stuck_ns = stuck_s * 1e9 if stuck_s > 0 else np.inf
+        self.backward_ns = backward_reset_s * 1e9
 
     def reset(self) -> None:
         """Forget the last accepted sample (the next one starts a new stream)."""
         self._last = None
+        self._newest = np.iinfo(np.int64).min
+        self._run = (np.nan, 0)
 
     def process(self, stamps_ns: np.ndarray, accel: np.ndarray, speed: np.ndarray,
                 frame_ids: np.ndarray | None = None) -> Clean:
@@ -62,6 +78,43 @@ class InputSanitizer:
         stamps = np.asarray(stamps_ns, dtype=np.int64)
         accel = np.asarray(accel, dtype=float)
         speed = np.broadcast_to(np.asarray(speed, dtype=float), accel.shape)
+        newest = np.maximum.accumulate(np.concatenate([[self._newest], stamps]))
+        jumps = np.flatnonzero(stamps < newest[:-1] - self.backward_ns)
+        if jumps.size == 0:
+            self._newest = int(newest[-1])
+            return self._classify(stamps, accel, speed, frame_ids)
+        i = int(jumps[0])  # time went backwards here: a new stream starts at sample i
+        head = self._classify(stamps[:i], accel[:i], speed[:i],
+                              None if frame_ids is None else frame_ids[:i])
+        self.reset()
+        self.counters['time_reset'] += 1
+        tail = self.process(stamps[i:], accel[i:], speed[i:],
+                            None if frame_ids is None else frame_ids[i:])
+        tail.reset_before[:1] = True
+        return Clean(*(np.concatenate([a, b]) for a, b in zip(
+            (head.stamps_ns, head.accel, head.speed, head.synthetic, head.reset_before),
+            (tail.stamps_ns, tail.accel, tail.speed, tail.synthetic, tail.reset_before),
+            strict=True)))
+
+    def _stuck(self, stamps: np.ndarray, accel: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """True where an ok sample repeats the current run's value for longer than stuck_s."""
+        stuck = np.zeros_like(ok)
+        if not np.isfinite(self.stuck_ns) or not ok.any():
+            return stuck
+        idx = np.flatnonzero(ok)
+        a, t = accel[idx], stamps[idx]
+        value, start = self._run
+        change = np.concatenate([[a[0] != value], a[1:] != a[:-1]])
+        starts = np.where(change, t, np.iinfo(np.int64).min)
+        starts[0] = t[0] if change[0] else start
+        run_start = np.maximum.accumulate(starts)
+        stuck[idx] = (t - run_start) > self.stuck_ns
+        self._run = (float(a[-1]), int(run_start[-1]))
+        return stuck
+
+    def _classify(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray,
+                  frame_ids: np.ndarray | None) -> Clean:
+        """Classify samples of one stream (no backward time jump inside)."""
         finite = np.isfinite(accel) & np.isfinite(speed)
         ok = finite.copy()
         frames = frame_mask(frame_ids, self.frame_id)
@@ -69,6 +122,8 @@ class InputSanitizer:
         ok &= ~wrong
         sat = ok & (np.abs(accel) >= self.limit)  # NaN compares False
         ok &= ~sat
+        stuck = self._stuck(stamps, accel, ok)
+        ok &= ~stuck
         sel = slice(None) if ok.all() else np.flatnonzero(ok)  # usual case: no index copies
         kept = stamps[sel]
         last = self._last[0] if self._last is not None else np.iinfo(np.int64).min
@@ -80,7 +135,8 @@ class InputSanitizer:
             sel = np.flatnonzero(ok)[~(dup | ooo)]
         accepted = stamps[sel]
         self.counters.update({'nan': int(np.sum(~finite)), 'wrong_frame': int(wrong.sum()),
-                              'saturated': int(sat.sum()), 'duplicate': int(dup.sum()),
+                              'saturated': int(sat.sum()), 'stuck': int(stuck.sum()),
+                              'duplicate': int(dup.sum()),
                               'out_of_order': int(ooo.sum()), 'accepted': accepted.size})
         return self._gaps(accepted, accel[sel], speed[sel])
 

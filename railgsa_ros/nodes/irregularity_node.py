@@ -56,6 +56,7 @@ from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
     NODE_SPECS,
+    SANITIZER_PARAMS,
     VEHICLE_SPECS,
     inversion_config,
     vehicle_values,
@@ -67,7 +68,8 @@ OUTPUT_FRAME = 'track'
 SPECS = INVERSION_SPECS + VEHICLE_SPECS + NODE_SPECS
 #: parameters whose change rebuilds the pipeline (flush, then a clean start); speed_mps is not
 #: one: the node passes the speed with every batch, so a new fallback speed applies at once
-MODEL_PARAMS = frozenset(s.name for s in INVERSION_SPECS + VEHICLE_SPECS) - {'speed_mps'}
+MODEL_PARAMS = frozenset((*(s.name for s in INVERSION_SPECS + VEHICLE_SPECS),
+                          *SANITIZER_PARAMS)) - {'speed_mps'}
 
 
 def build_model(values: Mapping[str, Any], noise_variance: float | None = None
@@ -77,7 +79,8 @@ def build_model(values: Mapping[str, Any], noise_variance: float | None = None
     ``noise_variance``: IMU accelerometer variance (m/s^2)^2 for the Kalman method.
     """
     vehicle = VehicleParams(**{n: values[n] for n in PARAM_NAMES})
-    return InversionPipeline(inversion_config(values), vehicle, noise_variance)
+    return InversionPipeline(inversion_config(values), vehicle, noise_variance,
+                             **{n: values[n] for n in SANITIZER_PARAMS})
 
 
 class IrregularityNode(ManagedNode):
@@ -229,8 +232,11 @@ class IrregularityNode(ManagedNode):
         return flushed
 
     def _retire(self, successor: InversionPipeline | None) -> None:
-        """Replace (or drop) the pipeline, keeping its counters."""
+        """Replace (or drop) the pipeline, keeping its counters; the successor continues the
+        chainage."""
         self._retired.update(self._pipeline.counters)
+        if successor is not None:
+            successor.start_chainage_m = self._pipeline.chainage_m
         self._pipeline = successor
 
     @staticmethod

@@ -2,7 +2,8 @@
 
 - INVERSION_SPECS: one per InversionConfig field (defaults = config/irregularity.yaml).
 - VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults.
-- NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, QoS depths).
+- NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, QoS depths,
+  stuck sensor and backward time limits).
 """
 
 from __future__ import annotations
@@ -41,7 +42,14 @@ NODE_SPECS = (
     ParamSpec('output_qos_depth', OUTPUT_DEPTH, 'per-sample output writer history (RELIABLE), '
               'samples', (1, 100_000), read_only=True),
     ParamSpec('hardware_id', 'imu', 'hardware_id on /diagnostics', read_only=True),
+    ParamSpec('stuck_s', 0.5, 'IMU samples repeating one value for longer than this are '
+              'rejected as stuck (a frozen sensor), s; 0 = off', (0.0, 3600.0)),
+    ParamSpec('backward_reset_s', 1.0, 'stamps going backwards by more than this (a looped bag, '
+              'a sim-time reset) restart the filters instead of being rejected, s',
+              (0.001, 1e6)),
 )
+#: NODE_SPECS handed to the core's input sanitiser
+SANITIZER_PARAMS = ('stuck_s', 'backward_reset_s')
 
 
 def inversion_config(values: Mapping[str, Any]) -> InversionConfig:

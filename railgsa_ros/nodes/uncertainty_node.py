@@ -54,7 +54,13 @@ from railgsa_ros.nodes.imu_input import ImuIntake
 from railgsa_ros.nodes.lifecycle import ManagedNode, run
 from railgsa_ros.nodes.params import ParamSpec, accept_integers, declare
 from railgsa_ros.nodes.qos import output_qos
-from railgsa_ros.nodes.specs import INVERSION_SPECS, NODE_SPECS, VEHICLE_SPECS, vehicle_values
+from railgsa_ros.nodes.specs import (
+    INVERSION_SPECS,
+    NODE_SPECS,
+    SANITIZER_PARAMS,
+    VEHICLE_SPECS,
+    vehicle_values,
+)
 from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream
 from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
 from railgsa_ros.vehicle import VehicleParams
@@ -132,9 +138,8 @@ class UncertaintyNode(ManagedNode):
         self.vehicle = VehicleParams(**vehicle_values(values))
         self.dists = load_uncertainty(values['uncertainty_file']) if \
             values['uncertainty_file'] else table3(self.vehicle)
-        self.stream = UncertaintyStream(self.config, self.vehicle, self.dists,
-                                        self._noise_variance)
         self._values = values
+        self.stream = self._new_stream()
         self._pubs = (
             self.create_lifecycle_publisher(Vector3Stamped, 'track/irregularity_band',
                                             output_qos(values['output_qos_depth'])),
@@ -223,10 +228,17 @@ class UncertaintyNode(ManagedNode):
             self._noise_variance = variance
             self._rebuild()
 
+    def _new_stream(self, start_chainage_m: float = 0.0) -> UncertaintyStream:
+        """A stream for the configuration, with the node's sanitiser limits."""
+        stream = UncertaintyStream(self.config, self.vehicle, self.dists, self._noise_variance)
+        stream.pipeline.sanitizer.set_limits(*(self._values[n] for n in SANITIZER_PARAMS))
+        stream.pipeline.start_chainage_m = start_chainage_m
+        return stream
+
     def _rebuild(self) -> None:
+        """A new stream (after a failure or for the reported noise) continuing the chainage."""
         self._retired.update(self.stream.counters)
-        self.stream = UncertaintyStream(self.config, self.vehicle, self.dists,
-                                        self._noise_variance)
+        self.stream = self._new_stream(self.stream.pipeline.chainage_m)
 
     def _publish(self, band: Band) -> None:
         """One Vector3Stamped per band sample, stamped with its IMU stamp."""
