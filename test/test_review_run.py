@@ -141,7 +141,7 @@ def test_injected_faults_appear_in_the_input_health(tmp_path: Path) -> None:
     bag = write_run(tmp_path / 'faulty', faulty)
     review = build_review(ReviewOptions(bag))
     counters, imu = review.health.counters, review.health.imu
-    assert review.health.rejected == {'nan': 5, 'wrong_frame': 0, 'saturated': 0,
+    assert review.health.rejected == {'nan': 5, 'wrong_frame': 0, 'saturated': 0, 'stuck': 0,
                                       'out_of_order': 0, 'duplicate': 1}
     assert counters['gap'] == 1 and counters['reset'] == 1  # 0.3 s > max_bridge_s 0.2 s
     assert imu.gaps == 1 and imu.longest_gap_s == pytest.approx(0.301, abs=1e-6)

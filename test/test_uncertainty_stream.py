@@ -3,6 +3,7 @@ indices against uq.analyze on the same quantity, stamps against the nominal pipe
 
 from __future__ import annotations
 
+from dataclasses import fields
 from itertools import pairwise
 from pathlib import Path
 
@@ -15,7 +16,12 @@ from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream, offline_bands
 from railgsa_ros.uncertainty.config import load_config
+from railgsa_ros.uncertainty.stream import band_statistics
+from railgsa_ros.uncertainty.surrogate import build_design
+from railgsa_ros.uncertainty.windows import WindowAnalyzer
 from railgsa_ros.uq import analyze
+from railgsa_ros.uq.germ import sobol
+from railgsa_ros.uq.pce import PCE
 from railgsa_ros.uq.uncertainty_file import table3
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
@@ -178,6 +184,45 @@ def test_windows_in_metres_follow_chainage(run):
     for i, rec in enumerate(records):
         assert i * 25.0 <= rec.chainage_start_m <= rec.chainage_end_m < (i + 1) * 25.0
     assert sum(r.samples for r in records) == run.stamps_ns.size
+
+
+def test_band_quantiles_are_those_of_the_sampled_surrogate(run):
+    """band_statistics (sort + rank interpolation in coefficient space) against np.quantile over
+    the PCE evaluated at the germ sample, sample by sample, including the order-2 terms."""
+    config = UncertaintyConfig(inversion=PAPER, germ_samples=1000, lower_quantile=0.1,
+                               upper_quantile=0.8)
+    design = build_design(config, VehicleParams(), DISTS)
+    u = _bank(run, design.theta)[:, ::7]  # (P, K): K = 572 is not a multiple of GEMM_ROWS
+    lower, mean, upper = band_statistics(design, (0.1, 0.8), u)
+    pce = PCE(design.alpha, design.projector @ u, config.germ)
+    samples = pce(sobol(len(DISTS), 1000, config.seed, config.germ))  # (S, K)
+    scale = np.abs(mean).max()
+    np.testing.assert_allclose(mean, pce.mean, rtol=0, atol=1e-14 * scale)
+    for got, q in ((lower, 0.1), (upper, 0.8)):
+        np.testing.assert_allclose(got, np.quantile(samples, q, axis=0), rtol=0,
+                                   atol=1e-14 * scale)
+
+
+def test_deferred_windows_give_the_streamed_records(run):
+    config = UncertaintyConfig(inversion=PAPER, window_length=0.5, n_mc=2048)
+    design = build_design(config, VehicleParams(), DISTS)
+    u = _bank(run, design.theta)
+    mean = design.projector[0] @ u
+    live, offline = WindowAnalyzer(config, design), WindowAnalyzer(config, design, defer=True)
+    streamed = []
+    for lo in range(0, run.stamps_ns.size, 300):
+        sl = slice(lo, lo + 300)
+        args = (run.stamps_ns[sl], run.chainage_m[sl], mean[sl], u[:, sl])
+        streamed += live.push(*args)
+        assert offline.push(*args) == []
+    streamed += live.close()
+    offline.close()
+    deferred = offline.analyze_deferred()
+    assert len(deferred) == len(streamed) == 2 * 16  # more than DEFER_BATCH windows
+    for a, b in zip(streamed, deferred, strict=True):  # bit for bit, but the compute time
+        for f in fields(a):
+            if f.name != 'compute_s':
+                np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name))
 
 
 @pytest.mark.parametrize(('changes', 'field'), [

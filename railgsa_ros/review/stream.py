@@ -79,7 +79,7 @@ class _Bank:
                  dists: Mapping[str, Distribution], noise_variance: float | None) -> None:
         self.design = build_design(config, vehicle, dists)
         self.pipeline = InversionPipeline(config.inversion, self.design.theta, noise_variance)
-        self.windows = WindowAnalyzer(config, self.design)
+        self.windows = WindowAnalyzer(config, self.design, defer=True)
         self.quantiles = (config.lower_quantile, config.upper_quantile)
         self.bands: list[Band] = []
         self.records: list[Sensitivity] = []
@@ -91,15 +91,16 @@ class _Bank:
             return
         lower, mean, upper = band_statistics(self.design, self.quantiles, out.u_m)
         self.bands.append(Band(out.stamps_ns, out.chainage_m, lower, mean, upper))
-        self.records += self.windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m)
+        self.windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m)
         k = int(np.argmax(np.abs(mean)))
         if self.worst is None or abs(mean[k]) > abs(self.worst.mean_m):
             self.worst = Worst(int(out.stamps_ns[k]), float(out.chainage_m[k]), float(mean[k]),
                                out.u_m[:, k].copy())
 
     def finish(self) -> None:
-        """Close the last window."""
-        self.records += self.windows.close()
+        """Close the last window; the delta estimates of all windows, in batches."""
+        self.windows.close()
+        self.records = self.windows.analyze_deferred()
 
 
 def _noise_variance(stream: ImuStream, config: UncertaintyConfig) -> float | None:
