@@ -17,6 +17,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosReliability
 
 from railgsa_ros.bag import BagWriter, cdr, read_imu, read_messages, summarize, write_run
+from railgsa_ros.bag import reader as reader_module
 from railgsa_ros.bag.messages import IMU, IMU_FIELDS, LAYOUTS, flatten, typestore
 from railgsa_ros.bag.run import sample_indices
 from railgsa_ros.errors import ConfigError, InputError
@@ -420,3 +421,34 @@ def test_write_run_in_chunks_equals_one_piece(tmp_path: Path,
     assert [(t, s) for t, s, _ in a] == [(t, s) for t, s, _ in b]
     assert [s for _, s, _ in b] == sorted(s for _, s, _ in b)
     assert sum(topic == '/odom' for topic, _, _ in b) == 50  # 1 s at 50 Hz
+
+
+@pytest.mark.parametrize('kind', ['write_run zstd', 'mcap_ros2 writer', 'split files'])
+def test_mcap_fast_path_reads_what_rosbags_reads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 kind: str) -> None:
+    run = make_run(700)
+    if kind == 'write_run zstd':  # channels at top level, message indexes after each chunk
+        path = write_run(tmp_path / 'bag', run, 'mcap', 'zstd', accel_variance=1e-4)
+    elif kind == 'mcap_ros2 writer':  # small zstd chunks holding their own channels
+        path = tmp_path / 'foreign.mcap'
+        cov0 = np.where(np.arange(700) % 50 == 3, -1.0, 1e-4)
+        write_foreign_mcap(path, run.stamps_ns, run.accel, cov0)
+    else:  # two files, the later one first by name: log-time order across files
+        path = tmp_path / 'split'
+        path.mkdir()
+        for k, sl in enumerate((slice(350, None), slice(None, 350))):
+            part = SimpleNamespace(**{k_: v[sl] for k_, v in vars(run).items()})
+            bag = write_run(tmp_path / f'part{k}', part)
+            shutil.copy(next(bag.glob('*.mcap')), path / f'split_{k}.mcap')
+    fast_calls = []
+    fast_path = reader_module._mcap_topics
+    monkeypatch.setattr(reader_module, '_mcap_topics',
+                        lambda *a: fast_calls.append(fast_path(*a)) or fast_calls[-1])
+    fast = read_imu(path)
+    assert len(fast_calls) == 1  # the fast path read it: no fallback
+    monkeypatch.setattr(reader_module, '_mcap_files', lambda p: None)
+    slow = read_imu(path)
+    for name in ('stamps_ns', 'log_time_ns', 'accel', 'frame_ids', 'covariance',
+                 'odom_stamps_ns', 'speed_mps'):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+    assert fast.stamps_ns.size == 700

@@ -98,7 +98,7 @@ def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uniq, inverse.ravel()
 
 
-def _decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
+def decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
     """Decode messages of one byte length: ``block`` is (N, L) uint8."""
     n, length = block.shape
     if length < 16 or np.any(block[:, 0] != 0) or np.any(block[:, 1] > 1):
@@ -162,10 +162,10 @@ def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
     if np.all(lengths == lengths[0]):
         block = np.frombuffer(b''.join(raws), np.uint8)
-        return _decode_block(layout, block.reshape(len(raws), int(lengths[0])))
+        return decode_block(layout, block.reshape(len(raws), int(lengths[0])))
     pieces = []
     for length in np.unique(lengths):
         rows = np.flatnonzero(lengths == length)
         block = np.frombuffer(b''.join([raws[i] for i in rows]), np.uint8)
-        pieces.append((rows, _decode_block(layout, block.reshape(rows.size, int(length)))))
+        pieces.append((rows, decode_block(layout, block.reshape(rows.size, int(length)))))
     return _combine(pieces, len(raws), layout)
