@@ -45,7 +45,9 @@ def reserve_domain(seed: int | None = None) -> tuple[int, socket.socket | None]:
 @contextmanager
 def isolated_domain() -> Iterator[int]:
     """Reserve a domain id and export it with localhost-only discovery for this process and its
-    children; the id is released on exit."""
+    children; on exit the id is released and the previous environment restored."""
+    names = ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY', 'ROS_DOMAIN_ID')
+    saved = {name: os.environ.get(name) for name in names}
     domain, sock = reserve_domain()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.pop('ROS_LOCALHOST_ONLY', None)
@@ -55,6 +57,11 @@ def isolated_domain() -> Iterator[int]:
     finally:
         if sock is not None:
             sock.close()
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def ros_env(base: Mapping[str, str] | None = None) -> dict[str, str]:

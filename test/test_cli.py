@@ -15,6 +15,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from railgsa_ros import cli
+from railgsa_ros.bag import read_imu
 from railgsa_ros.cli import simulate
 from railgsa_ros.cli.main import main
 from railgsa_ros.scenario import run_scenario
@@ -175,15 +176,28 @@ def test_bode_table_matches_the_characteristic_polynomial(tmp_path: Path) -> Non
     assert fmt.returncode == 2 and "unsupported image format '.doc'" in fmt.stderr
 
 
-def test_demo_runs_and_replaces_its_outputs(tmp_path: Path,
-                                            capsys: pytest.CaptureFixture) -> None:
+@pytest.mark.ros
+def test_demo_runs_the_system_and_replaces_its_outputs(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture) -> None:
+    from railgsa_ros.cli.demo import NODES, OUTPUTS, last_diagnostics
+
     out = tmp_path / 'demo'
-    assert main(['demo', '--out', str(out)]) == 0
+    duration = 9.0  # > the band delay (~7.2 s): the nodes emit the first ~1.8 s
+    assert main(['demo', '--out', str(out), '--duration', str(duration)]) == 0
     first = capsys.readouterr().out
     assert '/track/irregularity_truth' in first and 'wheel hop' in first
-    assert sorted(p.name for p in out.iterdir()) == ['bode.png', 'simulated_bag']
-    assert main(['demo', '--out', str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ['bode.png', 'simulated_bag']
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
+    assert f'report: {out / "review" / "report.html"}' in first
+    assert (out / 'review' / 'report.html').is_file()
+    imu = read_imu(out / 'simulated_bag')
+    statuses = last_diagnostics(out / 'live_bag')
+    for node in NODES:  # every sample of the bag reached both nodes
+        assert int(statuses[f'{node}: imu input']['received']) == imu.stamps_ns.size
+    emitted = imu.stamps_ns.size - int(statuses['irregularity_node: inversion']
+                                       ['band_delay_samples'])
+    assert f'/track/irregularity: {emitted} of {imu.stamps_ns.size} samples' in first
+    assert main(['demo', '--out', str(out), '--duration', str(duration)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
 
 
 def test_summary_of_a_bag_without_imu_or_truth(tmp_path: Path) -> None:
