@@ -1,0 +1,139 @@
+"""irregularity_node killed (SIGKILL) mid-stream and restarted, next to uncertainty_node and the
+recorder: it resumes with a clean state (outputs equal a fresh offline pipeline from the first
+sample after the restart, no spike), the restart shows on /diagnostics (new boot_id, first
+stamp), and the other two processes keep going (band published during the outage, the bag holds
+outputs from before and after)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+import signal
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+NODE_ARGS = [a for k, v in PARAMS.items() for a in ('-p', f'{k}:={str(v).lower()}')]
+KILL_AT, RESTART_AT = 3000, 4000  # sample indices: kill after, restart before
+
+
+class Probe:
+    """Publishes imu/data; records outputs, band stamps and the irregularity /diagnostics."""
+
+    def __init__(self, ros_context: Any, spin: Callable) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PointStamped, Vector3Stamped
+        from rclpy.node import Node
+        from sensor_msgs.msg import Imu
+
+        from railgsa_ros.nodes.qos import DIAGNOSTICS_QOS, output_qos, sensor_qos
+
+        self.node = spin(Node('fault_probe', context=ros_context))
+        self.lock = threading.Lock()
+        self.out: list[tuple[int, float]] = []
+        self.band: list[int] = []
+        self.diag: list[dict[str, str]] = []
+        self.imu = self.node.create_publisher(Imu, 'imu/data', sensor_qos())
+        self.node.create_subscription(PointStamped, 'track/irregularity', lambda m: self._keep(
+            self.out, (self._ns(m.header), m.point.z)), output_qos(20_000))
+        self.node.create_subscription(Vector3Stamped, 'track/irregularity_band', lambda m:
+                                      self._keep(self.band, self._ns(m.header)),
+                                      output_qos(20_000))
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
+                                      DIAGNOSTICS_QOS)
+
+    @staticmethod
+    def _ns(header: Any) -> int:
+        return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+    def _keep(self, into: list, item: Any) -> None:
+        with self.lock:
+            into.append(item)
+
+    def _on_diag(self, msg: Any) -> None:
+        for s in msg.status:
+            if s.name == 'irregularity_node: inversion':
+                self._keep(self.diag, {kv.key: kv.value for kv in s.values})
+
+    def publish(self, msgs: list) -> None:
+        """At about 1 kHz, in 20-message bursts."""
+        start = time.monotonic()
+        for i in range(0, len(msgs), 20):
+            time.sleep(max(0.0, start + i * 1e-3 - time.monotonic()))
+            for msg in msgs[i:i + 20]:
+                self.imu.publish(msg)
+
+
+def test_kill_and_restart_resumes_clean_and_others_keep_going(
+        ros_context: Any, spin: Callable, wait_for: Callable, start_node: Callable,
+        tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    from railgsa_ros.bag.messages import typestore
+    from railgsa_ros.scenario import run_scenario
+
+    run = run_scenario('german-low', speed_mps=40.0, duration_s=8.0, rate_hz=1000.0,
+                       sensor='ideal', seed=3)
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    msgs = imu_msgs(stamps, acc)
+    bag = tmp_path / 'bag'
+    recorder = start_node('railgsa_ros.nodes.recorder', [
+        '-p', f'out:={bag}', '-p', 'topics:=[/track/irregularity,/track/irregularity_band]'])
+    uncertainty = start_node('railgsa_ros.nodes.uncertainty_node', NODE_ARGS)
+    irregularity = start_node('railgsa_ros.nodes.irregularity_node', NODE_ARGS)
+    probe = Probe(ros_context, spin)
+    node = probe.node
+    assert wait_for(lambda: probe.imu.get_subscription_count() >= 2, 90.0)
+    assert wait_for(lambda: node.count_subscribers('track/irregularity') >= 2 and
+                    node.count_subscribers('track/irregularity_band') >= 2, 60.0)
+    assert wait_for(lambda: len(probe.diag) > 0, 10.0)
+    time.sleep(0.5)
+    boot = probe.diag[-1]['boot_id']
+
+    probe.publish(msgs[:KILL_AT])
+    assert wait_for(lambda: len(probe.out) > 0, 20.0)
+    time.sleep(0.3)
+    irregularity.proc.send_signal(signal.SIGKILL)
+    irregularity.proc.wait(10.0)
+    with probe.lock:
+        before, band_before = len(probe.out), len(probe.band)
+    probe.publish(msgs[KILL_AT:RESTART_AT])  # outage: the uncertainty node goes on
+    assert wait_for(lambda: len(probe.band) > band_before, 10.0)
+
+    restarted = start_node('railgsa_ros.nodes.irregularity_node', NODE_ARGS)
+    assert wait_for(lambda: probe.imu.get_subscription_count() >= 2, 90.0)
+    assert wait_for(lambda: any(d['boot_id'] != boot for d in probe.diag), 60.0)
+    time.sleep(0.5)
+    probe.publish(msgs[RESTART_AT:])
+    ref = offline(stamps[RESTART_AT:], acc[RESTART_AT:])  # a fresh pipeline
+    assert wait_for(lambda: len(probe.out) >= before + ref.stamps_ns.size, 30.0), \
+        (len(probe.out) - before, ref.stamps_ns.size)
+    assert wait_for(lambda: probe.diag[-1].get('first_stamp_ns') == str(stamps[RESTART_AT]),
+                    10.0), probe.diag[-1]
+    with probe.lock:
+        new_t = np.array([o[0] for o in probe.out[before:]], np.int64)
+        new_u = np.array([o[1] for o in probe.out[before:]])
+    np.testing.assert_array_equal(new_t, ref.stamps_ns)
+    np.testing.assert_allclose(new_u, ref.u_m, rtol=0, atol=1e-15)  # a clean start
+    full = offline(stamps, acc).u_m
+    assert np.abs(new_u).max() <= 1.2 * np.abs(full).max()  # no spike
+    assert uncertainty.running() and recorder.running()
+
+    results = [p.stop(signal.SIGINT) for p in (restarted, uncertainty, recorder)]
+    assert [r.rc for r in results] == [0, 0, 0], [r.stderr for r in results]
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        recorded = {c.topic: 0 for c in reader.connections}
+        irr_stamps = []
+        for conn, _, raw in reader.messages():
+            recorded[conn.topic] += 1
+            if conn.topic == '/track/irregularity':
+                irr_stamps.append(Probe._ns(reader.deserialize(raw, conn.msgtype).header))
+    assert recorded['/track/irregularity_band'] > 0
+    irr_stamps = np.array(irr_stamps)
+    assert (irr_stamps < stamps[KILL_AT]).any() and (irr_stamps >= stamps[RESTART_AT]).any()
