@@ -141,19 +141,17 @@ class ImuIntake:
 
     def report(self, totals: Mapping[str, int], delta: Mapping[str, int], elapsed_s: float,
                expected_frame_id: str) -> Report:
-        """The 'imu input' task: ERROR without input in the period, WARN with rejections, gaps
-        or accepted wrong frames in it, else OK; totals and period deltas of the counters."""
+        """The 'imu input' task: ERROR without input in the period, WARN with rejections, gaps,
+        time resets or accepted wrong frames in it, else OK; totals and period deltas."""
         values: dict[str, object] = {'topic': self.sub.topic_name,
                                      'rate_hz': delta.get('received', 0) / elapsed_s}
         for key in ('received', 'accepted', 'gap', 'reset', 'time_reset', 'bridged',
-                    'wrong_frame_accepted',
-                    'odom_malformed'):
+                    'wrong_frame_accepted', 'odom_malformed'):
             values[key] = totals.get(key, 0)
         values['rejected'] = sum(totals.get(r, 0) for r in REJECT_REASONS)
         values.update({f'rejected_{r}': totals.get(r, 0) for r in REJECT_REASONS})
         recent = {r: delta[r] for r in (*REJECT_REASONS, 'gap', 'time_reset',
-                                        'wrong_frame_accepted')
-                  if delta.get(r, 0)}
+                                        'wrong_frame_accepted') if delta.get(r, 0)}
         values['last_period'] = ', '.join(f'{k} {v}' for k, v in recent.items()) or 'clean'
         values['expected_frame_id'] = expected_frame_id
         if delta.get('received', 0) == 0:
