@@ -2,13 +2,19 @@
 
 1. In core: a simulated 1 kHz run pushed in 50-sample chunks (the node's 50 ms processing
    period) through the nominal InversionPipeline (baseline) and UncertaintyStream (19-point PEM5
-   bank, band quantiles, sensitivity windows). Fraction of one core = CPU time / data duration.
+   bank, band quantiles, sensitivity windows). Fraction of one core = CPU time / data duration;
+   then, in a second untimed pass, the peak of the memory allocated while building and running
+   each (tracemalloc).
 2. Live: an IMU publisher at 1 kHz, irregularity_node (the nominal pipeline live: baseline) and
    uncertainty_node as separate processes (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, a private
-   ROS_DOMAIN_ID); CPU time of each node from /proc over the publishing period, and what each
-   published (read back from its /diagnostics).
+   ROS_DOMAIN_ID); CPU time of each node from /proc over the publishing period, its peak resident
+   memory (VmHWM, the whole process: Python, numpy, rclpy), and what each published (read back
+   from its /diagnostics).
 3. Accuracy: band mean and quantiles against brute-force Monte Carlo through the same inverse
    (paper mode: feedback, no band; the paper profile at 10 m/s, 8 s, noise-free).
+
+BLAS is limited to one thread (set before numpy is imported), as on the loaded 2-core machine
+the nodes are measured on.
 
 Usage: python benchmarks/bench_uncertainty_cost.py [--duration 60] [--live 30] [--mc 2000]
 """
@@ -26,7 +32,9 @@ import subprocess
 import sys
 import tempfile
 import time
+import tracemalloc
 
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # before numpy: one BLAS thread
 import numpy as np
 
 SPEED_MPS = 20.0
@@ -47,23 +55,34 @@ def in_core(duration_s: float) -> None:
 
     run = _run(duration_s)
     acc, config = run.accel[:, 2], UncertaintyConfig()
-    rows = {}
-    for name, obj in (('nominal pipeline', InversionPipeline(config.inversion)),
-                      ('uncertainty stream', UncertaintyStream(config))):
+    makers = {'nominal pipeline': lambda: InversionPipeline(config.inversion),
+              'uncertainty stream': lambda: UncertaintyStream(config)}
+
+    def stream(obj) -> list:
         windows = []
-        start = time.process_time()
         for lo in range(0, acc.size, CHUNK):
             out = obj.push(run.stamps_ns[lo:lo + CHUNK], acc[lo:lo + CHUNK],
                            run.speed_mps[lo:lo + CHUNK])
             windows += getattr(out, 'windows', [])
-        windows += getattr(obj.flush(), 'windows', [])  # closes the last window
-        rows[name] = (time.process_time() - start, windows)
+        return windows + getattr(obj.flush(), 'windows', [])  # closes the last window
+
+    rows = {}
+    for name, make in makers.items():
+        obj = make()
+        start = time.process_time()
+        windows = stream(obj)
+        cpu = time.process_time() - start
+        tracemalloc.start()  # second pass, untimed: tracing slows allocations down
+        stream(make())
+        rows[name] = (cpu, windows, tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
     base = rows['nominal pipeline'][0]
     print(f'\n1. In core: {duration_s:g} s at 1 kHz ({acc.size} samples) in chunks of {CHUNK} '
           f'and a flush, spectral D1, {config.rule} on Table 3 (19 points)')
-    print(f'{"":<20}{"CPU s":>8}{"core fraction":>15}{"ratio":>8}')
-    for name, (cpu, _) in rows.items():
-        print(f'{name:<20}{cpu:>8.2f}{cpu / duration_s:>15.4f}{cpu / base:>8.1f}')
+    print(f'{"":<20}{"CPU s":>8}{"core fraction":>15}{"ratio":>8}{"peak MB":>9}')
+    for name, (cpu, _, peak) in rows.items():
+        print(f'{name:<20}{cpu:>8.2f}{cpu / duration_s:>15.4f}{cpu / base:>8.1f}'
+              f'{peak / 1e6:>9.1f}')
     windows = rows['uncertainty stream'][1]
     ms = np.array([w.compute_s for w in windows[::len(config.qois)]]) * 1e3
     print(f'sensitivity windows ({config.window_length:g} s, {len(config.qois)} QoIs, n_mc '
@@ -83,6 +102,13 @@ def _reserve_domain() -> tuple[int, socket.socket]:
             continue
         return int(domain), sock
     raise RuntimeError('no free ROS_DOMAIN_ID in 1..100')
+
+
+def _peak_mb(pid: int) -> float:
+    """Peak resident memory (VmHWM) of a process, MB."""
+    line = next(x for x in Path(f'/proc/{pid}/status').read_text().splitlines()
+                if x.startswith('VmHWM'))
+    return int(line.split()[1]) * 1024 / 1e6
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -156,6 +182,7 @@ def live(seconds: float) -> None:
             cpu[i] = {n: _cpu_seconds(p.pid) for n, p in nodes.items()}
         publisher.wait(timeout=60)
         diag = json.loads(Path(tmp, 'diagnostics.json').read_text())
+        peaks = {n: _peak_mb(p.pid) for n, p in nodes.items()}
         codes = {}
         for name, proc in nodes.items():
             proc.send_signal(signal.SIGINT)
@@ -167,16 +194,16 @@ def live(seconds: float) -> None:
     span = wall[1] - wall[0]
     print(f'\n2. Live: {seconds:g} s of IMU at 1 kHz, both nodes as processes, CPU from /proc '
           f'over {span:.1f} s')
-    print(f'{"":<20}{"core fraction":>15}{"ratio":>8}{"received":>10}{"published":>11}'
-          f'{"exit":>6}')
+    print(f'{"":<20}{"core fraction":>15}{"ratio":>8}{"peak MB":>9}{"received":>10}'
+          f'{"published":>11}{"exit":>6}')
     base = cpu[1]['irregularity_node'] - cpu[0]['irregularity_node']
     for name in nodes:
         used = cpu[1][name] - cpu[0][name]
         received = diag.get(f'{name}: imu input/received', '?')
         published = diag.get(f'{name}: inversion/published',
                              diag.get(f'{name}: uncertainty/published', '?'))
-        print(f'{name:<20}{used / span:>15.3f}{used / base:>8.1f}{received:>10}'
-              f'{published:>11}{codes[name]!s:>6}')
+        print(f'{name:<20}{used / span:>15.3f}{used / base:>8.1f}{peaks[name]:>9.0f}'
+              f'{received:>10}{published:>11}{codes[name]!s:>6}')
     own = diag.get('uncertainty_node: uncertainty/cpu_fraction_of_one_core', '?')
     window = diag.get('uncertainty_node: uncertainty/window_compute_max_ms', '?')
     fraction = (cpu[1]['uncertainty_node'] - cpu[0]['uncertainty_node']) / span
