@@ -57,7 +57,7 @@ def test_healthy_sensor_at_rest_passes_with_its_own_figures(preset: str, adxl: t
     spec = PRESETS[preset]
     stamps, accel = adxl if preset == 'adxl355' else bmi
     rate, jitter, order, gravity, noise = (
-        rate_item(stamps, spec.output_rate_hz), jitter_item(stamps, spec.output_rate_hz),
+        rate_item(stamps, spec.output_rate_hz, 10.0), jitter_item(stamps, spec.output_rate_hz),
         monotonic_item(stamps), gravity_item(accel), noise_item(stamps, accel, spec))
     assert [i.status for i in (rate, jitter, order, gravity, noise)] == [PASS] * 5
     drifted = spec.output_rate_hz / (1 + 1e-6 * spec.clock_drift_ppm)
@@ -100,7 +100,7 @@ def test_gravity_in_g_instead_of_m_per_s2_fails(adxl: tuple) -> None:
 def test_wrong_preset_fails_on_rate_and_noise(adxl: tuple, bmi: tuple) -> None:
     adxl_spec, bmi_spec = PRESETS['adxl355'], PRESETS['bmi088']
     # a BMI088 checked as an ADXL355: 400 Hz instead of 1000, about 175 instead of 22.5 ug
-    rate = rate_item(bmi[0], adxl_spec.output_rate_hz)
+    rate = rate_item(bmi[0], adxl_spec.output_rate_hz, 10.0)
     noise = noise_item(*bmi, adxl_spec)
     assert rate.status == FAIL and number(rate.value) == pytest.approx(400.0, rel=1e-4)
     assert noise.status == FAIL and 'noisier' in noise.hint
@@ -130,13 +130,17 @@ def test_stamp_jitter_measured_and_judged(jitter_s: float, status: str) -> None:
     assert number(item.value) == pytest.approx(jitter_s * 1e3, rel=0.1)
 
 
-def test_rate_mismatch_and_lost_samples() -> None:
+def test_rate_mismatch_lost_samples_and_slow_delivery() -> None:
     stamps, _ = stream(PRESETS['ideal'])
-    assert rate_item(stamps, 1025.0).status == FAIL   # 2.4 % off
-    assert rate_item(stamps, 1015.0).status == PASS   # 1.5 % off
+    assert rate_item(stamps, 1025.0, 10.0).status == FAIL   # 2.4 % off
+    good = rate_item(stamps, 1015.0, 10.0)                  # 1.5 % off
+    assert good.status == PASS and good.value == '1000.0 Hz, 0.0% lost, 1000 msg/s received'
     keep = np.random.default_rng(0).random(stamps.size) > 0.1
-    item = rate_item(stamps[keep], 1000.0)
+    item = rate_item(stamps[keep], 1000.0, 10.0)
     assert item.status == WARN and number(item.value, 1) == pytest.approx(10.0, abs=1.0)
+    late = rate_item(stamps, 1000.0, 12.0)  # 10 s of stamps arrived in 12 s
+    assert late.status == WARN and late.value.endswith('833 msg/s received')
+    assert 'falls behind real time' in late.hint
 
 
 def test_out_of_order_and_duplicate_stamps_counted_exactly() -> None:
@@ -153,7 +157,7 @@ def test_out_of_order_and_duplicate_stamps_counted_exactly() -> None:
 def test_no_data_fails_every_imu_item_without_raising() -> None:
     empty, none3 = np.zeros(0, np.int64), np.zeros((0, 3))
     spec = PRESETS['adxl355']
-    items = [rate_item(empty, 1000.0), jitter_item(empty, 1000.0), monotonic_item(empty),
+    items = [rate_item(empty, 1000.0, 1.0), jitter_item(empty, 1000.0), monotonic_item(empty),
              gravity_item(none3), noise_item(empty, none3, spec)]
     assert [i.status for i in items] == [FAIL] * 5
     nan = np.full((5000, 3), np.nan)
@@ -199,5 +203,5 @@ def test_checklist_text_json_and_exit_code(adxl: tuple) -> None:
     assert 'FAIL  node uncertainty_node' in text and text.endswith('(5 failed, 0 warnings)')
     doc = json.loads(items_json(bare))
     assert doc['status'] == FAIL and len(doc['items']) == 10
-    assert doc['items'][0] == {'name': 'imu rate', 'status': PASS, 'value': items[0].value,
+    assert doc['items'][0] == {'name': 'imu rate', 'status': PASS, 'value': bare[0].value,
                                'expected': '1000 Hz +- 2%', 'hint': ''}

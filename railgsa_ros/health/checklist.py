@@ -10,7 +10,6 @@ import numpy as np
 from railgsa_ros.health.imu_checks import (
     gravity_item,
     jitter_item,
-    measured_rate,
     monotonic_item,
     noise_item,
     rate_item,
@@ -44,12 +43,12 @@ def checklist(obs: Observation, spec: ImuSpec, rate_hz: float | None = None) -> 
     output rate."""
     rate_hz = spec.output_rate_hz if rate_hz is None else rate_hz
     stamps, accel = obs.imu_stamps_ns, obs.imu_accel
-    imu_rate = measured_rate(stamps)
-    items = [rate_item(stamps, rate_hz), jitter_item(stamps, rate_hz), monotonic_item(stamps),
-             gravity_item(accel), noise_item(stamps, accel, spec),
+    received_hz = len(stamps) / obs.duration_s  # the outputs follow what arrives
+    items = [rate_item(stamps, rate_hz, obs.duration_s), jitter_item(stamps, rate_hz),
+             monotonic_item(stamps), gravity_item(accel), noise_item(stamps, accel, spec),
              odom_item(obs.odom_stamps_ns, obs.odom_speed_mps, obs.duration_s)]
     for node, topic in NODE_OUTPUTS.items():
         items.append(node_item(node, obs.nodes))
         items.append(output_item(topic, obs.outputs.get(topic, TopicStats()), obs.duration_s,
-                                 imu_rate if np.isfinite(imu_rate) else 0.0))
+                                 received_hz))
     return items

@@ -63,8 +63,11 @@ def measured_rate(stamps_ns: np.ndarray) -> float:
         horizon *= 2.0
 
 
-def rate_item(stamps_ns: np.ndarray, expected_hz: float) -> Item:
-    """Rate within RATE_TOLERANCE of ``expected_hz``; the lost fraction WARNs above LOST_WARN."""
+def rate_item(stamps_ns: np.ndarray, expected_hz: float, duration_s: float) -> Item:
+    """Stamp rate within RATE_TOLERANCE of ``expected_hz``. WARN when more than LOST_WARN of
+    the samples are missing between the first and the last stamp (dropouts), or when fewer
+    messages arrived per second of listening than the stamps advance (not real time: the
+    publisher falls behind or a link drops messages)."""
     expected = f'{expected_hz:g} Hz +- {RATE_TOLERANCE:.0%}'
     rate = measured_rate(stamps_ns)
     if not math.isfinite(rate):
@@ -72,7 +75,8 @@ def rate_item(stamps_ns: np.ndarray, expected_hz: float) -> Item:
                     'no IMU stream: check the topic name, the driver and the cabling')
     span_s = float(np.ptp(np.asarray(stamps_ns, np.int64))) / 1e9
     lost = max(0.0, 1.0 - len(stamps_ns) / (span_s * rate + 1.0))
-    value = f'{rate:.1f} Hz, {lost:.1%} lost'
+    received = len(stamps_ns) / duration_s
+    value = f'{rate:.1f} Hz, {lost:.1%} lost, {received:.0f} msg/s received'
     if abs(rate / expected_hz - 1.0) > RATE_TOLERANCE:
         return Item('imu rate', FAIL, value, expected,
                     'the output data rate differs from the sensor preset: wrong preset or '
@@ -80,6 +84,10 @@ def rate_item(stamps_ns: np.ndarray, expected_hz: float) -> Item:
     if lost > LOST_WARN:
         return Item('imu rate', WARN, value, expected,
                     'samples missing: dropouts in the driver or a congested link')
+    if received < (1.0 - LOST_WARN) * rate:
+        return Item('imu rate', WARN, value, expected,
+                    'fewer messages than the stamps advance: the publisher falls behind real '
+                    'time or messages are dropped on the way')
     return Item('imu rate', PASS, value, expected)
 
 

@@ -50,9 +50,10 @@ def node_item(name: str, nodes: Collection[str]) -> Item:
 
 
 def output_item(topic: str, stats: TopicStats, duration_s: float, imu_rate_hz: float) -> Item:
-    """``topic`` publishes, at about the IMU rate, only finite values."""
+    """``topic`` publishes only finite values, at about ``imu_rate_hz`` (the IMU messages that
+    arrived per second: one output per IMU sample)."""
     name = f'output {topic}'
-    expected = f'~{imu_rate_hz:.0f} Hz (IMU rate), finite' if imu_rate_hz > 0 else 'finite'
+    expected = f'~{imu_rate_hz:.0f} Hz (IMU received), finite' if imu_rate_hz > 0 else 'finite'
     rate = stats.count / duration_s
     value = f'{rate:.1f} Hz, {stats.nonfinite} non-finite'
     if stats.count == 0:

@@ -3,15 +3,15 @@
 
 A node of its own context subscribes the IMU (BEST_EFFORT, a deep history: nothing is lost at
 1 kHz while the executor is busy), odometry and the nodes' per-sample outputs (BEST_EFFORT,
-which matches RELIABLE publishers too). It first waits up to ``DISCOVERY_S`` for every topic to
-have a publisher, then records for the requested duration, and finally reads the node names in
-the graph. No ``main``: this module is not a node of its own (the ``railgsa check`` command
-runs it).
+which matches RELIABLE publishers too). The subscriptions are raw: a callback only keeps the
+CDR bytes, decoded vectorised at the end (``bag.cdr``), so that the check keeps up with 1 kHz
+streams on a loaded computer. It first waits up to ``DISCOVERY_S`` for every topic to have a
+publisher, then records for the requested duration, takes what is still queued, and reads the
+node names in the graph. No ``main``: ``railgsa check`` runs it.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import time
 
@@ -22,74 +22,76 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu
 
+from railgsa_ros.bag.cdr import Decoded, decode
+from railgsa_ros.bag.messages import FIELDS, LAYOUTS, flatten
 from railgsa_ros.health.checklist import NODE_OUTPUTS, Observation
 from railgsa_ros.health.system_checks import TopicStats
-from railgsa_ros.nodes.imu_conversion import NS_PER_S
 from railgsa_ros.nodes.qos import sensor_qos
 
-IMU_DEPTH = 5000  #: IMU reader history, samples (5 s at 1 kHz)
-OUTPUT_DEPTH = 5000  #: output reader history (the band arrives in bursts)
-ODOM_DEPTH = 100
+DEPTH = 5000  #: reader history of every subscription, messages (5 s at 1 kHz)
 DISCOVERY_S = 3.0  #: longest wait for the topics' publishers before recording starts
+DRAIN_S = 2.0  #: longest time spent taking what is still queued after the window
+TYPES = {'imu': Imu, 'odom': Odometry, NODE_OUTPUTS['irregularity_node']: PointStamped,
+         NODE_OUTPUTS['uncertainty_node']: Vector3Stamped}
 
 
-def _stamp_ns(msg: object) -> int:
-    stamp = msg.header.stamp  # type: ignore[attr-defined]
-    return stamp.sec * NS_PER_S + stamp.nanosec
+def decode_messages(msg_cls: type, raws: list[bytes]) -> Decoded:
+    """Vectorised CDR decoding; rclpy's deserialiser for anything else (other encodings)."""
+    msgtype = msg_cls.__module__.split('.')[0] + '/msg/' + msg_cls.__name__
+    try:
+        return decode(LAYOUTS[msgtype], raws)
+    except ValueError:
+        rows = [flatten(deserialize_message(raw, msg_cls), msgtype) for raw in raws]
+        layout = LAYOUTS[msgtype]
+        return Decoded(np.array([r[0] for r in rows], np.int64),
+                       tuple(np.array([r[1][j] for r in rows], dtype=str)
+                             for j in range(layout.n_strings)),
+                       np.array([r[2] for r in rows], float).reshape(-1, layout.n_doubles))
+
+
+def _column(msg_cls: type, field: str) -> slice:
+    return FIELDS[msg_cls.__module__.split('.')[0] + '/msg/' + msg_cls.__name__][field]
 
 
 class _Collector(Node):
-    """Subscriptions that append what arrives; ``clear`` starts the recording window."""
+    """Raw subscriptions that keep the bytes; ``clear`` starts the recording window."""
 
     def __init__(self, imu_topic: str, odom_topic: str, context: Context) -> None:
         super().__init__(f'railgsa_check_{os.getpid()}', context=context)
-        self.topics = [imu_topic, odom_topic, *NODE_OUTPUTS.values()]
-        self.create_subscription(Imu, imu_topic, self._on_imu, sensor_qos(IMU_DEPTH))
-        self.create_subscription(Odometry, odom_topic, self._on_odom, sensor_qos(ODOM_DEPTH))
-        self.create_subscription(PointStamped, NODE_OUTPUTS['irregularity_node'],
-                                 self._on_output, sensor_qos(OUTPUT_DEPTH))
-        self.create_subscription(Vector3Stamped, NODE_OUTPUTS['uncertainty_node'],
-                                 self._on_output, sensor_qos(OUTPUT_DEPTH))
-        self.clear()
+        self.topics = {'imu': imu_topic, 'odom': odom_topic,
+                       **{t: t for t in NODE_OUTPUTS.values()}}
+        self.raws: dict[str, list[bytes]] = {key: [] for key in self.topics}
+        for key, topic in self.topics.items():
+            self.create_subscription(TYPES[key], topic, self.raws[key].append,
+                                     sensor_qos(DEPTH), raw=True)
 
     def clear(self) -> None:
-        self.imu: list[tuple[int, float, float, float]] = []
-        self.odom: list[tuple[int, float]] = []
-        self.outputs = {topic: [0, 0] for topic in NODE_OUTPUTS.values()}
+        for raws in self.raws.values():
+            raws.clear()
 
-    def _on_imu(self, msg: Imu) -> None:
-        a = msg.linear_acceleration
-        self.imu.append((_stamp_ns(msg), a.x, a.y, a.z))
-
-    def _on_odom(self, msg: Odometry) -> None:
-        self.odom.append((_stamp_ns(msg), msg.twist.twist.linear.x))
-
-    def _on_output(self, msg: PointStamped | Vector3Stamped) -> None:
-        if isinstance(msg, PointStamped):
-            topic, values = NODE_OUTPUTS['irregularity_node'], (msg.point.x, msg.point.z)
-        else:
-            topic, values = NODE_OUTPUTS['uncertainty_node'], (msg.vector.x, msg.vector.y,
-                                                                msg.vector.z)
-        counts = self.outputs[topic]
-        counts[0] += 1
-        counts[1] += not all(math.isfinite(v) for v in values)
+    def received(self) -> int:
+        return sum(map(len, self.raws.values()))
 
     def all_published(self) -> bool:
-        return all(self.count_publishers(t) > 0 for t in self.topics)
+        return all(self.count_publishers(t) > 0 for t in self.topics.values())
 
     def observation(self, duration_s: float) -> Observation:
-        imu = np.array(self.imu, float).reshape(-1, 4)
-        odom = np.array(self.odom, float).reshape(-1, 2)
+        imu = decode_messages(Imu, self.raws['imu'])
+        odom = decode_messages(Odometry, self.raws['odom'])
+        outputs = {}
+        for topic in NODE_OUTPUTS.values():
+            values = decode_messages(TYPES[topic], self.raws[topic]).values
+            outputs[topic] = TopicStats(len(values), int(np.sum(~np.isfinite(values).all(1))))
         return Observation(
-            duration_s=duration_s,
-            imu_stamps_ns=np.array([row[0] for row in self.imu], np.int64),
-            imu_accel=imu[:, 1:],
-            odom_stamps_ns=np.array([row[0] for row in self.odom], np.int64),
-            odom_speed_mps=odom[:, 1],
+            duration_s=duration_s, imu_stamps_ns=imu.stamps_ns,
+            imu_accel=imu.values[:, _column(Imu, 'linear_acceleration')],
+            odom_stamps_ns=odom.stamps_ns,
+            odom_speed_mps=odom.values[:, _column(Odometry, 'twist.twist.linear')][:, 0],
             nodes=frozenset(name for name, _ in self.get_node_names_and_namespaces()),
-            outputs={t: TopicStats(*c) for t, c in self.outputs.items()})
+            outputs=outputs)
 
 
 def _spin_until(executor: SingleThreadedExecutor, deadline: float, done=lambda: False) -> None:
@@ -112,6 +114,11 @@ def collect(imu_topic: str, odom_topic: str, duration_s: float) -> Observation:
         _spin_until(executor, time.monotonic() + DISCOVERY_S, node.all_published)
         node.clear()
         _spin_until(executor, time.monotonic() + duration_s)
+        deadline, count = time.monotonic() + DRAIN_S, -1
+        while count != node.received() and time.monotonic() < deadline:  # queued in time
+            count = node.received()
+            for _ in range(100):
+                executor.spin_once(timeout_sec=0.0)
         return node.observation(duration_s)
     except ExternalShutdownException:
         raise KeyboardInterrupt from None
