@@ -423,7 +423,8 @@ def test_write_run_in_chunks_equals_one_piece(tmp_path: Path,
     assert sum(topic == '/odom' for topic, _, _ in b) == 50  # 1 s at 50 Hz
 
 
-@pytest.mark.parametrize('kind', ['write_run zstd', 'mcap_ros2 writer', 'split files'])
+@pytest.mark.parametrize('kind', ['write_run zstd', 'mcap_ros2 writer', 'split files',
+                                  'unlisted file'])
 def test_mcap_fast_path_reads_what_rosbags_reads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                  kind: str) -> None:
     run = make_run(700)
@@ -433,6 +434,10 @@ def test_mcap_fast_path_reads_what_rosbags_reads(tmp_path: Path, monkeypatch: py
         path = tmp_path / 'foreign.mcap'
         cov0 = np.where(np.arange(700) % 50 == 3, -1.0, 1e-4)
         write_foreign_mcap(path, run.stamps_ns, run.accel, cov0)
+    elif kind == 'unlisted file':  # a stray .mcap next to the one metadata.yaml lists
+        path = write_run(tmp_path / 'bag', run)
+        stray = write_run(tmp_path / 'other', make_run(100, seed=9))
+        shutil.copy(next(stray.glob('*.mcap')), path / 'stray.mcap')
     else:  # two files, the later one first by name: log-time order across files
         path = tmp_path / 'split'
         path.mkdir()

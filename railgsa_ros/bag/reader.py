@@ -42,7 +42,8 @@ from railgsa_ros.bag.messages import (
     flatten,
     typestore,
 )
-from railgsa_ros.errors import InputError, RailGsaError
+from railgsa_ros.config import load_yaml
+from railgsa_ros.errors import ConfigError, InputError, RailGsaError
 
 STORAGE_SUFFIXES = ('.mcap', '.db3')
 _RECORD = struct.Struct('<BQ')  # MCAP record: opcode, content length
@@ -121,18 +122,25 @@ def _topic_connections(reader: AnyReader, path: Path, topic: str, msgtype: str) 
 
 
 def _mcap_files(path: Path) -> list[Path] | None:
-    """The storage files of ``path`` when all of them are MCAP, else None."""
+    """The storage files of ``path`` when all of them are uncompressed-file MCAP (the files a
+    bag's metadata.yaml lists, else every .mcap of a directory), else None."""
     files = []
     for entry in storage_paths(path):
-        if entry.is_dir():
+        if entry.is_dir() and (entry / 'metadata.yaml').is_file():
+            try:
+                info = load_yaml(entry / 'metadata.yaml')['rosbag2_bagfile_information']
+                found = [entry / name for name in info['relative_file_paths']]
+            except (ConfigError, KeyError, TypeError):
+                return None  # rosbags decides and reports
+        elif entry.is_dir():
             found = sorted(entry.glob('*.mcap'))
-            if not found or any(entry.glob('*.db3')):
+            if any(entry.glob('*.db3')):
                 return None
-            files += found
-        elif entry.suffix == '.mcap':
-            files.append(entry)
         else:
+            found = [entry]
+        if not found or any(f.suffix != '.mcap' for f in found):
             return None
+        files += found
     return files
 
 
