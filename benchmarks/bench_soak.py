@@ -11,7 +11,8 @@ Live (``--live-minutes``, default 10; 0 skips it): an IMU publisher process at 1
 (bench_node_latency.py's ``publish`` role), ``irregularity_node`` and ``uncertainty_node`` as
 processes, all on loopback in a reserved ROS domain. Every minute: each node's VmRSS and CPU
 share from /proc, and from its /diagnostics the published count, the irregularity node's latency
-p99 and the uncertainty node's window compute time.
+p99 and the uncertainty node's window compute time. Verdict: RSS growth after a two-minute
+warm-up <= 5 MB; the slopes of latency and window compute time are printed.
 
 Usage: python benchmarks/bench_soak.py [--hours 24] [--live-minutes 10] [--uq-hours H]
 """
@@ -42,6 +43,7 @@ SPEED_MPS = 30.0
 BLOCK_S = 600  # the simulated run that is repeated
 CHUNK = RATE_HZ  # samples per push (1 s)
 MAX_GROWTH_MB = 5.0
+WARM_UP_MIN = 2  #: live minutes before the first windows' allocations have settled
 
 
 def rss_mb(pid: int | str = 'self') -> float:
@@ -203,11 +205,19 @@ def soak_live(minutes: float) -> bool:
     for m, r1, c1, r2, c2, p1, l1, p2, w2 in rows:
         print(f'| {m} | {r1:.1f} | {c1:.0%} | {p1} | {l1} | {r2:.1f} | {c2:.0%} | {p2} | {w2} |')
     flat = True
-    for name, col in (('irregularity_node', 1), ('uncertainty_node', 3)):
+    minutes_arr = np.array([r[0] for r in rows], float)
+    for name, col, lat_col, lat_name in (('irregularity_node', 1, 6, 'latency p99'),
+                                         ('uncertainty_node', 3, 8, 'window compute')):
         rss = np.array([r[col] for r in rows])
-        growth = float(rss[1:].max() - rss[0]) if rss.size > 1 else 0.0
+        warm = minutes_arr > WARM_UP_MIN
+        growth = float(rss[warm].max() - rss[warm][0]) if warm.sum() > 1 else 0.0
         flat &= growth <= MAX_GROWTH_MB
-        print(f'{name}: RSS growth after minute 1 {growth:+.2f} MB (limit {MAX_GROWTH_MB:g})')
+        lat = np.array([float(r[lat_col]) if r[lat_col] != '-' else np.nan for r in rows])
+        ok = np.isfinite(lat)
+        slope = float(np.polyfit(minutes_arr[ok], lat[ok], 1)[0]) if ok.sum() > 1 else 0.0
+        print(f'{name}: RSS {rss[0]:.1f} MB at minute 1, growth after minute {WARM_UP_MIN} '
+              f'(warm-up) {growth:+.2f} MB (limit {MAX_GROWTH_MB:g}); {lat_name} slope '
+              f'{slope:+.3f} ms per minute')
     return flat and codes == [0, 0]
 
 
