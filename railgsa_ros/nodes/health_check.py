@@ -99,6 +99,18 @@ def _spin_until(executor: SingleThreadedExecutor, deadline: float, done=lambda: 
         executor.spin_once(timeout_sec=min(0.1, max(deadline - time.monotonic(), 0.0)))
 
 
+def _drain(executor: SingleThreadedExecutor, node: _Collector) -> None:
+    """Take the messages still queued when the window closed: one callback at a time until a
+    call finds nothing ready (taking is far faster than a 1 kHz stream refills the queue),
+    DRAIN_S at most."""
+    deadline = time.monotonic() + DRAIN_S
+    while time.monotonic() < deadline:
+        count = node.received()
+        executor.spin_once(timeout_sec=0.0)
+        if node.received() == count:
+            return
+
+
 def collect(imu_topic: str, odom_topic: str, duration_s: float) -> Observation:
     """Record ``duration_s`` seconds of a live system (after up to DISCOVERY_S of discovery).
 
@@ -114,11 +126,7 @@ def collect(imu_topic: str, odom_topic: str, duration_s: float) -> Observation:
         _spin_until(executor, time.monotonic() + DISCOVERY_S, node.all_published)
         node.clear()
         _spin_until(executor, time.monotonic() + duration_s)
-        deadline, count = time.monotonic() + DRAIN_S, -1
-        while count != node.received() and time.monotonic() < deadline:  # queued in time
-            count = node.received()
-            for _ in range(100):
-                executor.spin_once(timeout_sec=0.0)
+        _drain(executor, node)
         return node.observation(duration_s)
     except ExternalShutdownException:
         raise KeyboardInterrupt from None
