@@ -32,7 +32,7 @@ pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[1]
 DIP = (150.0, 10.0)  # start, length (m) of the 8 mm cosine dip
 SPEED = 20.0
-LEAD_NS = 1_000_000_000  # the first odometry message is also played 1 s early (see write_bag)
+LEAD_NS = 2_000_000_000  # the first odometry message is also played 2 s early (see write_bag)
 IRR, BAND, DIAG = '/track/irregularity', '/track/irregularity_band', '/diagnostics'
 IRR_NODE, UNC_NODE = 'irregularity_node', 'uncertainty_node'
 PARAMS = {IRR_NODE: REPO / 'config' / 'irregularity.yaml',  # the nodes' and the CLI's settings
@@ -49,7 +49,7 @@ def scenario(duration_s: float) -> Run:
 
 def write_bag(path: Path, run: Run, imu_stamps_ns: np.ndarray | None = None) -> Path:
     """The run as a bag whose first odometry message is repeated LEAD_NS before the data: the
-    replay then waits a second after its publishers matched the first subscriber, so that both
+    replay then waits 2 s after its publishers matched their first subscriber, so that both
     nodes have matched before the first IMU sample. ``imu_stamps_ns``: other Imu header stamps
     (log times stay the run's, so the replay keeps the arrival order)."""
     enc = RunEncoder(run)
@@ -118,6 +118,22 @@ class Probe:
             self.rows[topic].append((msg.header.stamp.sec * 1_000_000_000
                                      + msg.header.stamp.nanosec, v.x, v.y, v.z))
 
+    def inputs_ready(self, topics: list[str], readers: int, timeout: float) -> bool:
+        """Wait until each topic has ``readers`` subscriptions in the ROS graph."""
+        deadline = time.monotonic() + timeout
+        while not all(self.node.count_subscribers(t) >= readers for t in topics):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.05)
+        return True
+
+    def clear(self) -> None:
+        """Forget everything received so far (before another attempt)."""
+        with self.lock:
+            self.latest.clear()
+            for rows in self.rows.values():
+                rows.clear()
+
     def count(self, topic: str) -> int:
         """Messages of ``topic`` received so far."""
         with self.lock:
@@ -154,10 +170,10 @@ def run_live(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,
              clock: bool = False) -> Live:
     """Start the recorder and both nodes, replay ``bag``, wait until the nodes are done, stop
     the recorder with SIGINT, read the recording."""
-    # input: one second of samples at the replay rate; output: the whole run, so that a
-    # RELIABLE writer keeps every sample until the slowest reader acknowledged it
-    ros_args = ['-p', f'imu_qos_depth:={max(1000, round(1000 * rate))}',
-                '-p', f'output_qos_depth:={2 * n_imu}']
+    # reader and writer histories hold the whole run: a stall of the shared machine then
+    # delays samples instead of dropping them, and a RELIABLE writer keeps every output until
+    # the slowest reader acknowledged it (docs/integration.md, findings at 5x)
+    ros_args = ['-p', f'imu_qos_depth:={2 * n_imu}', '-p', f'output_qos_depth:={2 * n_imu}']
     if clock:
         ros_args += ['-p', 'use_sim_time:=true']
     out = tmp / 'recorded'
@@ -167,6 +183,8 @@ def run_live(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,
                  for name in (IRR_NODE, UNC_NODE)]
         for topic in (IRR, BAND):  # the nodes are up and the recorder has their outputs
             assert recorder.wait_for_line(rf'recording {topic} \(', 120.0), _logs(system)
+        inputs = ['/imu/data', '/odom'] + (['/clock'] if clock else [])
+        assert probe.inputs_ready(inputs, len(nodes), 60.0), _logs(system)
         replay_args = ['--topics', '/imu/data', '/odom', '--wait-for-subscribers', '30',
                        '--rate', str(rate)] + (['--clock', '100'] if clock else [])
         replay = system.command('replay', str(bag), *replay_args)
@@ -181,6 +199,23 @@ def run_live(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,
             assert 'Traceback' not in node.output(), node.output()
     return Live(read_stamped(out, IRR, POINT_STAMPED.msgtype),
                 read_stamped(out, BAND, VECTOR3_STAMPED.msgtype), last_diagnostics(out))
+
+
+def run_complete(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,
+                 clock: bool = False, attempts: int = 2) -> Live:
+    """``run_live`` again (once) when a node did not receive every IMU sample: the nodes'
+    BEST_EFFORT input loses samples in the transport when the shared machine starves them
+    (docs/integration.md); whatever the last attempt gives is checked exactly."""
+    for attempt in range(attempts):
+        probe.clear()
+        (tmp / f'attempt{attempt}').mkdir()
+        live = run_live(tmp / f'attempt{attempt}', bag, n_imu, probe, rate, clock)
+        received = [int(live.diagnostics[f'{n}: imu input']['received'])
+                    for n in (IRR_NODE, UNC_NODE)]
+        if received == [n_imu] * 2:
+            break
+        print(f'\nattempt {attempt}: the nodes received {received} of {n_imu} IMU samples')
+    return live
 
 
 def _logs(system: System) -> str:
@@ -228,12 +263,17 @@ def test_live_nodes_equal_offline_and_track_truth(clean: tuple, rate: float, clo
     bag, run, off_irr, off_band = clean
     assert np.array_equal(off_irr.stamps_ns, run.stamps_ns)  # the CLI flushes: all samples
     probe = Probe(spin, ros_context, 2 * run.stamps_ns.size)
-    live = run_live(tmp_path, bag, run.stamps_ns.size, probe, rate, clock)
+    live = run_complete(tmp_path, bag, run.stamps_ns.size, probe, rate, clock)
+    for name in (IRR_NODE, UNC_NODE):  # every sample reached both nodes and was accepted
+        counters = live.diagnostics[f'{name}: imu input']
+        assert int(counters['received']) == int(counters['accepted']) == run.stamps_ns.size, \
+            f'{name}: {counters}'
+        assert int(counters['rejected']) == int(counters['gap']) == 0, f'{name}: {counters}'
     d_irr = int(live.diagnostics[f'{IRR_NODE}: inversion']['band_delay_samples'])
     d_band = int(live.diagnostics[f'{UNC_NODE}: uncertainty']['band_delay_samples'])
     n_irr, n_band = run.stamps_ns.size - d_irr, run.stamps_ns.size - d_band
     # this process's reader drains its history after the nodes are done
-    wait_for(lambda: probe.count(IRR) >= n_irr and probe.count(BAND) >= n_band, 30.0)
+    wait_for(lambda: probe.count(IRR) >= n_irr and probe.count(BAND) >= n_band, 60.0)
     check_outputs(run.stamps_ns, probe.received(IRR), probe.received(BAND), off_irr, off_band,
                   d_irr, d_band)
     if rate == 1.0:  # railgsa record keeps up at 1 kHz, not at 5 kHz (docs/integration.md)
@@ -247,11 +287,6 @@ def test_live_nodes_equal_offline_and_track_truth(clean: tuple, rate: float, clo
     print(f'\n{rate:g}x clock={clock}: rmse {s.rmse * 1e3:.4f} mm, correlation '
           f'{s.correlation:.4f}, dip peak error {s.peak_error * 1e3:.4f} mm, recorded '
           f'{live.irr.stamps_ns.size} + {live.band.stamps_ns.size} of {n_irr} + {n_band}')
-    # every sample accepted, nothing rejected
-    for name in (IRR_NODE, UNC_NODE):
-        counters = live.diagnostics[f'{name}: imu input']
-        assert int(counters['received']) == int(counters['accepted']) == run.stamps_ns.size
-        assert int(counters['rejected']) == int(counters['gap']) == 0
 
 
 def test_injected_faults_are_counted_by_reason(tmp_path: Path, ros_context: Any,
@@ -272,7 +307,7 @@ def test_injected_faults_are_counted_by_reason(tmp_path: Path, ros_context: Any,
     arrived = replace(run, accel=accel)
     arrived = replace(arrived, **{f: getattr(arrived, f)[keep] for f in fields})
     bag = write_bag(tmp_path / 'bag', arrived, stamps[keep])  # log times keep the arrival order
-    live = run_live(tmp_path, bag, int(keep.sum()), Probe(spin, ros_context, 2 * keep.size))
+    live = run_complete(tmp_path, bag, int(keep.sum()), Probe(spin, ros_context, 2 * keep.size))
     expected = {'received': int(keep.sum()), 'rejected_nan': len(nan_at),
                 'rejected_out_of_order': len(swap_at), 'rejected': len(nan_at) + len(swap_at),
                 'gap': len(bridged) + 1, 'bridged': sum(bridged.values()), 'reset': 1,
