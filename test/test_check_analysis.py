@@ -14,6 +14,7 @@ from railgsa_ros.health import FAIL, PASS, WARN, Observation, checklist, exit_co
 from railgsa_ros.health.imu_checks import (
     gravity_item,
     jitter_item,
+    measured_rate,
     monotonic_item,
     noise_item,
     rate_item,
@@ -141,6 +142,19 @@ def test_rate_mismatch_lost_samples_and_slow_delivery() -> None:
     late = rate_item(stamps, 1000.0, 12.0)  # 10 s of stamps arrived in 12 s
     assert late.status == WARN and late.value.endswith('833 msg/s received')
     assert 'falls behind real time' in late.hint
+
+
+@pytest.mark.parametrize(('jitter_s', 'lost', 'burst_s', 'rel'), [
+    (1e-4, 0.5, 0.002, 2e-5),    # half the samples lost in 2 ms bursts
+    (2.5e-4, 0.3, 0.003, 2e-3),  # jitter a quarter period and 30 % lost
+    (1e-4, 0.05, 0.5, 2e-5),     # long bursts
+])
+def test_rate_robust_to_dropouts_and_jitter(jitter_s: float, lost: float, burst_s: float,
+                                            rel: float) -> None:
+    spec = replace(PRESETS['ideal'], clock_drift_ppm=50.0, stamp_jitter_s=jitter_s,
+                   dropout_fraction=lost, dropout_burst_s=burst_s)
+    stamps, _ = stream(spec)
+    assert measured_rate(stamps) == pytest.approx(1000.0 / (1 + 50e-6), rel=rel)
 
 
 def test_out_of_order_and_duplicate_stamps_counted_exactly() -> None:

@@ -41,26 +41,56 @@ def steps_ns(stamps_ns: np.ndarray) -> np.ndarray:
     return np.diff(np.asarray(stamps_ns, np.int64)).astype(float)
 
 
-def measured_rate(stamps_ns: np.ndarray) -> float:
-    """Sample rate, Hz: the slope of the stamps over their sample numbers round((t - t0) / T).
+def _peak_period(rel_ns: np.ndarray, period: float, samples: int, width: float,
+                 points: int) -> float:
+    """The candidate period within +-``width`` (relative) of ``period`` at which the first
+    ``samples`` stamps line up best: the largest |sum exp(2 pi i t / T)| (a periodogram of the
+    stamps), ns."""
+    candidates = period * (1.0 + np.linspace(-width, width, points))
+    turns = np.exp(2j * np.pi * rel_ns[None, :samples] / candidates[:, None])
+    return float(candidates[np.argmax(np.abs(turns.sum(axis=1)))])
 
-    T starts as the median step and is refitted over a horizon that doubles each time (100
-    periods first): with stamp jitter up to a quarter period the error of T over the next
-    horizon stays below a quarter period, so the sample numbers stay exact across dropouts.
-    NaN with fewer than 2 steps or a median step that is not positive.
+
+def _block_period(rel_ns: np.ndarray, period: float, block: float) -> float:
+    """Least-squares period (ns) over blocks of ``block`` periods, each with its own offset:
+    within a block the sample numbers are the stamps' distances from the block's mean phase in
+    whole periods, so a dropout or a jittered stamp never shifts the numbers of the others."""
+    _, ids = np.unique(np.floor(rel_ns / (block * period)).astype(np.int64),
+                       return_inverse=True)
+    turn = np.exp(2j * np.pi * rel_ns / period)
+    phase = np.angle(np.bincount(ids, turn.real) + 1j * np.bincount(ids, turn.imag))
+    number = np.rint(rel_ns / period - phase[ids] / (2 * np.pi))
+    count = np.bincount(ids)
+    dx = number - (np.bincount(ids, number) / count)[ids]
+    dy = rel_ns - (np.bincount(ids, rel_ns) / count)[ids]
+    den = float(np.dot(dx, dx))
+    return float(np.dot(dx, dy)) / den if den > 0 else math.nan
+
+
+def measured_rate(stamps_ns: np.ndarray) -> float:
+    """Sample rate of the stamps, Hz; NaN with fewer than 3 stamps.
+
+    Robust to dropouts (even most samples lost in short bursts) and to stamp jitter up to a
+    quarter period, to within 0.2 % (1e-5 at a tenth of a period): a first guess from the
+    shorter steps, refined by the stamps' periodogram (within 30 %, then 0.2 %), then by
+    least squares over blocks of 20, 200, ... periods until one block spans all stamps.
     """
-    steps = steps_ns(stamps_ns)
-    period = float(np.median(steps)) if steps.size >= 2 else 0.0
-    if not period > 0:
+    stamps = np.asarray(stamps_ns, np.int64)
+    steps = np.diff(stamps).astype(float)
+    steps = steps[steps > 0]
+    if steps.size < 2:
         return math.nan
-    rel = (np.asarray(stamps_ns, np.int64) - int(stamps_ns[0])).astype(float)
-    horizon, span = 100.0 * period, float(rel.max())
-    while True:
-        sel = np.abs(rel) <= horizon
-        period = float(np.polyfit(np.rint(rel[sel] / period), rel[sel], 1)[0])
-        if horizon >= span or not period > 0:
-            return 1e9 / period if period > 0 else math.nan
-        horizon *= 2.0
+    period = float(np.median(steps[steps <= 2.0 * np.percentile(steps, 25)]))
+    rel = (stamps - stamps[0]).astype(float)
+    period = _peak_period(rel, period, 256, 0.3, 601)
+    period = _peak_period(rel, period, 4096, 2e-3, 81)
+    span, block = float(np.ptp(rel)), 20.0
+    while period > 0:
+        period = _block_period(rel, period, block)
+        if block * period >= span:
+            break
+        block *= 10.0
+    return 1e9 / period if period > 0 else math.nan
 
 
 def rate_item(stamps_ns: np.ndarray, expected_hz: float, duration_s: float) -> Item:
