@@ -57,6 +57,28 @@ def test_transitions_walk_the_node_through_its_states(run: Any, ros_context: Any
         node.destroy_node()
 
 
+def test_uncertainty_node_transitions(run: Any, ros_context: Any) -> None:
+    from rclpy.lifecycle import TransitionCallbackReturn as R
+
+    from railgsa_ros.nodes.uncertainty_node import UncertaintyNode
+
+    node = UncertaintyNode(context=ros_context, parameter_overrides=_overrides(autostart=False))
+    try:
+        band = 'track/irregularity_band'
+        assert node.trigger_configure() == R.SUCCESS and node.count_publishers(band) == 1
+        assert node.count_subscribers('imu/data') == 0
+        assert node.trigger_activate() == R.SUCCESS
+        assert node.count_subscribers('imu/data') == 1  # the polled reader
+        stamps, acc = run.stamps_ns[:2500] + T0_NS, run.accel[:2500, 2]
+        assert len(node.process(imu_msgs(stamps, acc))) == 2500 - node.stream.delay_samples
+        assert node.trigger_deactivate() == R.SUCCESS and node.count_subscribers('imu/data') == 0
+        assert node.process(imu_msgs(stamps, acc)) is None
+        assert node.trigger_cleanup() == R.SUCCESS and node.count_publishers(band) == 0
+        assert node.counters()['accepted'] == 2500
+    finally:
+        node.destroy_node()
+
+
 @pytest.mark.parametrize('module,cls', [('irregularity_node', 'IrregularityNode'),
                                         ('uncertainty_node', 'UncertaintyNode')])
 def test_bad_parameters_keep_the_node_unconfigured(module: str, cls: str,
