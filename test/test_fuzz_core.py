@@ -5,9 +5,9 @@ example in turn, as a node feeds it for months.
 Chunks of 0..2500 samples continue the stream or jump (a gap, a huge step forward, backwards
 a little or far, anywhere in the header-stamp range 1 ns .. 2^31 s) and carry injected faults:
 accelerations NaN, +-inf, subnormal, 1e308 or any float, duplicated and backward stamps, stuck
-stretches, wrong frame ids; speeds are any finite float (odometry), held to +-200 m/s for the
-Kalman method (see the xfail below). Nothing raises, every emitted value is finite, and every
-sample is counted exactly once: accepted or rejected by one reason.
+stretches, wrong frame ids; speeds up to +-1 km/s (odometry), +-200 m/s for the Kalman
+method (faster ones: see the xfails below). Nothing raises, every emitted value is finite,
+and every sample is counted exactly once: accepted or rejected by one reason.
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ FAULT_VALUES = st.one_of(st.floats(), st.sampled_from(
 FAULTS = st.lists(st.tuples(st.floats(0, 1, exclude_max=True),
                             st.sampled_from(['value', 'duplicate', 'backward', 'stuck',
                                              'frame']), FAULT_VALUES), max_size=8)
-SPEEDS = st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.floats(-50, 80),
-                   st.just(40.0))
+#: speeds as odometry may send them (any finite value up to 1 km/s; beyond: see the xfail)
+SPEEDS = st.one_of(st.floats(-1e3, 1e3), st.floats(-50, 80), st.just(40.0))
 BANK_SPEEDS = st.one_of(st.floats(-200, 200), st.just(40.0))
 
 
@@ -206,3 +206,15 @@ def test_kalman_with_absurd_odometry_speed(speed: float) -> None:
     out = pipe.push(np.array([NS, NS + PERIOD_NS]), np.array([G, G]), speed)
     assert np.all(np.isfinite(out.u_m))
 
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    'inverse/pipeline.py: the chainage integrates any finite speed, so one odometry message of '
+    '1e308 m/s overflows it to inf, and every later output carries chainage inf (a 1e200 m/s '
+    'one freezes it at 1e200); the nodes pass such speeds on; reported to the lead'))
+def test_absurd_odometry_speed_keeps_the_chainage_finite() -> None:
+    pipe = InversionPipeline(config())
+    stamps = NS + np.arange(3000) * PERIOD_NS
+    outs = [pipe.push(stamps + k * 3 * NS, np.full(3000, G), v)
+            for k, v in enumerate((40.0, 1e308, 40.0))]
+    assert all(np.all(np.isfinite(o.chainage_m)) for o in outs)

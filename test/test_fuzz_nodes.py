@@ -51,8 +51,12 @@ bad_messages = st.tuples(
 batches = st.tuples(st.integers(0, 700), st.lists(st.tuples(st.floats(0, 1), bad_messages),
                                                   max_size=6),
                     st.sampled_from([1, 1, 1, 0, -1, 30]))  # clock step: on, dup, back, gap
-odoms = st.lists(st.tuples(st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 - 1),
-                           st.one_of(floats, st.floats(-80, 80)), st.booleans()), max_size=4)
+#: odometry speeds: NaN/inf (rejected) and finite ones up to 1 km/s (beyond that the chainage
+#: overflows: test_fuzz_core.py::test_absurd_odometry_speed_keeps_the_chainage_finite)
+speeds = st.one_of(st.sampled_from([np.nan, np.inf, -np.inf]), st.floats(-1e3, 1e3),
+                   st.floats(-80, 80))
+odoms = st.lists(st.tuples(st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 - 1), speeds,
+                           st.booleans()), max_size=4)
 
 
 def imu(sec: int, nsec: int, frame: str, acc: tuple, cov: list) -> Any:
