@@ -183,26 +183,27 @@ def test_demo_runs_the_system_and_replaces_its_outputs(tmp_path: Path,
     from railgsa_ros.cli.demo import NODES, OUTPUTS, last_diagnostics
 
     out = tmp_path / 'demo'
-    duration = 9.0  # > the band delay (~7.2 s): the nodes emit the first ~1.8 s
-    assert main(['demo', '--out', str(out), '--duration', str(duration)]) == 0
-    first = capsys.readouterr().out
-    assert '/track/irregularity_truth' in first and 'wheel hop' in first
+    for stale in ('live_bag', 'logs', 'review'):  # outputs of an earlier run are replaced
+        (out / stale).mkdir(parents=True)
+        (out / stale / 'old').write_text('old')
+    assert main(['demo', '--out', str(out), '--duration', '9']) == 0  # > band delay (~7.2 s)
+    printed = capsys.readouterr().out
+    assert '/track/irregularity_truth' in printed and 'wheel hop' in printed
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
-    assert f'report: {out / "review" / "report.html"}' in first
+    assert f'report: {out / "review" / "report.html"}' in printed
     assert (out / 'review' / 'report.html').is_file()
     imu = read_imu(out / 'simulated_bag')
     irr = read_stamped(out / 'live_bag', '/track/irregularity', POINT_STAMPED.msgtype)
-    assert f'/track/irregularity: {irr.stamps_ns.size} of {imu.stamps_ns.size} samples' in first
+    assert f'/track/irregularity: {irr.stamps_ns.size} of {imu.stamps_ns.size} samples' in printed
     statuses = last_diagnostics(out / 'live_bag')
     for node, task in zip(NODES, ('inversion', 'uncertainty'), strict=True):
         inp, work = statuses[f'{node}: imu input'], statuses[f'{node}: {task}']
         assert (f'{node}: received {inp["received"]}, accepted {inp["accepted"]}, rejected '
-                f'{inp["rejected"]}, gaps {inp["gap"]}, published {work["published"]}') in first
+                f'{inp["rejected"]}, gaps {inp["gap"]}, published {work["published"]}') in printed
     # everything irregularity_node published was recorded (whether every IMU sample reached the
     # nodes is the integration tests' business: test_integration_replay.py)
     assert int(statuses['irregularity_node: inversion']['published']) == irr.stamps_ns.size > 0
-    assert main(['demo', '--out', str(out), '--duration', str(duration)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
+    assert not any((out / stale / 'old').exists() for stale in ('live_bag', 'logs', 'review'))
 
 
 def test_summary_of_a_bag_without_imu_or_truth(tmp_path: Path) -> None:
