@@ -67,6 +67,7 @@ def first_band(ros_context: Any, spin: Callable, wait_for: Callable) -> Callable
     return lambda: wait_for(lambda: bool(got), 60.0)
 
 
+@pytest.mark.slow
 def test_check_on_a_live_system(start_node: Callable, first_band: Callable) -> None:
     sim = start_node('railgsa_ros.nodes.imu_sim_node',
                      ['-p', 'duration_s:=120.0', '-p', f'speed_mps:={SPEED}', '-p', 'seed:=4'])
