@@ -117,10 +117,12 @@ def imu_spec(name: str, **overrides: Any) -> ImuSpec:
     """A preset by name with fields overridden; unknown preset or field -> ConfigError."""
     if name not in PRESETS:
         raise ConfigError(f'sensor: unknown preset {name!r}; expected {", ".join(PRESETS)}')
+    from railgsa_ros.config import key_list
+
     known = {f.name for f in fields(ImuSpec)} - {'name'}
-    unknown = sorted(set(overrides) - known)
+    unknown = [k for k in overrides if k not in known]
     if unknown:
-        raise ConfigError(f'imu: unknown field(s) {", ".join(unknown)}')
+        raise ConfigError(f'imu: unknown field(s) {key_list(unknown)}')
     return replace(PRESETS[name], **overrides)
 
 
@@ -132,6 +134,11 @@ def load_imu(path: str | Path) -> ImuSpec:
     section = doc.get('imu') if isinstance(doc, dict) else None
     if not isinstance(section, dict):
         raise ConfigError(f'{path}: missing top-level "imu:" mapping')
+    from railgsa_ros.config import key_list
+
+    odd = [k for k in section if not isinstance(k, str)]
+    if odd:
+        raise ConfigError(f'{path}: imu: field names must be text, got {key_list(odd)}')
     section = dict(section)
     try:
         return imu_spec(str(section.pop('preset', 'ideal')), **section)

@@ -261,9 +261,6 @@ def test_load_imu(path: Path, doc: Any) -> None:
     outcome(load_imu, path)
 
 
-@pytest.mark.xfail(strict=True, reason='imu.load_imu (foundation, not a loader of this '
-                   'suite): a non-string key escapes as TypeError, a key with a line break '
-                   'splits the message; reported to the lead')
 @pytest.mark.parametrize('section', [{0: None}, {'\x85 ': None}])
 def test_load_imu_odd_keys(path: Path, section: dict) -> None:
     write(path, {'imu': section})
