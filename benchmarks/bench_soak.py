@@ -163,15 +163,15 @@ def soak_live(minutes: float) -> bool:
     env = _ros_env(domain)
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(domain))
     common = ['-p', 'use_odom:=false', '-p', f'speed_mps:={SPEED_MPS}']
+    out = Path(tempfile.mkdtemp(prefix='bench_soak_'))
+    logs = {name: out / f'{name}.err' for name in ('irregularity_node', 'uncertainty_node')}
     nodes = {name: subprocess.Popen(
         [sys.executable, '-m', f'railgsa_ros.nodes.{name}', '--ros-args', *common], env=env,
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        for name in ('irregularity_node', 'uncertainty_node')}
+        stdout=subprocess.DEVNULL, stderr=log.open('w')) for name, log in logs.items()}
     tap = DiagnosticsTap()
-    out = tempfile.mkdtemp(prefix='bench_soak_')
     publisher = subprocess.Popen(
         [sys.executable, str(HERE / 'bench_node_latency.py'), 'publish', '--duration',
-         str(minutes * 60 + 30), '--out', out, '--readers', '2'], env=env,
+         str(minutes * 60 + 30), '--out', str(out), '--readers', '2'], env=env,
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     rows = []
     try:
@@ -199,6 +199,10 @@ def soak_live(minutes: float) -> bool:
         tap.close()
         sock.close()
     print(f'\n### live: {int(minutes)} min at 1 kHz through both nodes (exit codes {codes})\n')
+    for (name, log), code in zip(logs.items(), codes, strict=True):
+        if code != 0:
+            print(f'{name} stderr (last lines):\n```\n'
+                  + '\n'.join(log.read_text().splitlines()[-15:]) + '\n```\n')
     print('| minute | irregularity RSS MB | CPU | published | latency p99 ms | '
           'uncertainty RSS MB | CPU | published | window compute ms |')
     print('|---|---|---|---|---|---|---|---|---|')

@@ -142,7 +142,18 @@ def run(factory: Callable[[], ManagedNode], args: list[str] | None = None) -> in
         if rclpy.ok():  # a genuine failure, not a stop request while the node was built
             raise
     finally:
-        if node is not None:
-            node.destroy_node()
+        _destroy(node)
         rclpy.try_shutdown()
     return 0
+
+
+def _destroy(node: ManagedNode | None) -> None:
+    """Destroy the node; a failure after a stop request (context already shut down) is part of
+    stopping, not an error."""
+    if node is None:
+        return
+    try:
+        node.destroy_node()
+    except Exception:
+        if rclpy.ok():
+            raise
