@@ -328,7 +328,10 @@ def test_killing_the_uncertainty_node_leaves_irregularity_node_unaffected(
     listener = listen()
     assert wait_for(lambda: listener.imu.get_subscription_count() >= 2, 30.0), \
         (irregularity.running(), uncertainty.running())
-    time.sleep(0.5)
+    # the graph may still list readers of nodes destroyed by earlier tests: wait for the
+    # process's own /diagnostics (it reports once active, i.e. subscribed)
+    assert wait_for(lambda: len(listener.diag) > 0, 30.0), uncertainty.stop().stderr
+    time.sleep(1.0)
     stamps = run.stamps_ns + T0_NS
     msgs = imu_messages(stamps, run.accel[:, 2])
     half = 2600  # past the band delay of both nodes (about 1.8 s)
