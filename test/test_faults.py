@@ -106,3 +106,18 @@ def test_chainage_continues_across_a_rebuild(run: Any, node: Any) -> None:
     step = 40.0 * 1e-3  # m per sample at 40 m/s
     assert np.all(np.diff(chain) >= 0) and np.diff(chain).max() <= step * (1 + 1e-9)
     np.testing.assert_allclose(chain[-1], (chain.size - 2) * step, rtol=1e-9)
+
+
+def test_interleaved_clocks_reset_at_every_backward_jump() -> None:
+    """Two clocks 10 s apart interleaved in one batch: every sample after the first restarts
+    the filters (1000 forward gaps, 999 backward time resets); no recursion limit."""
+    from railgsa_ros.inverse.sanitize import InputSanitizer
+
+    k = np.arange(2000)
+    stamps = T0_NS + (k // 2) * 1_000_000 + (k % 2) * 10_000_000_000
+    san = InputSanitizer(1000.0)
+    clean = san.process(stamps, np.full(k.size, G), 1.0)
+    np.testing.assert_array_equal(clean.stamps_ns, stamps)
+    assert int(clean.reset_before.sum()) == 1999
+    assert (san.counters['time_reset'], san.counters['gap'], san.counters['reset']) == \
+        (999, 1000, 1000)

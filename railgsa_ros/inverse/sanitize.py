@@ -78,22 +78,26 @@ class InputSanitizer:
         stamps = np.asarray(stamps_ns, dtype=np.int64)
         accel = np.asarray(accel, dtype=float)
         speed = np.broadcast_to(np.asarray(speed, dtype=float), accel.shape)
-        newest = np.maximum.accumulate(np.concatenate([[self._newest], stamps]))
-        jumps = np.flatnonzero(stamps < newest[:-1] - self.backward_ns)
-        if jumps.size == 0:
-            self._newest = int(newest[-1])
-            return self._classify(stamps, accel, speed, frame_ids)
-        i = int(jumps[0])  # time went backwards here: a new stream starts at sample i
-        head = self._classify(stamps[:i], accel[:i], speed[:i],
-                              None if frame_ids is None else frame_ids[:i])
-        self.reset()
-        self.counters['time_reset'] += 1
-        tail = self.process(stamps[i:], accel[i:], speed[i:],
-                            None if frame_ids is None else frame_ids[i:])
-        tail.reset_before[:1] = True
-        return Clean(*(np.concatenate([a, b]) for a, b in zip(
-            (head.stamps_ns, head.accel, head.speed, head.synthetic, head.reset_before),
-            (tail.stamps_ns, tail.accel, tail.speed, tail.synthetic, tail.reset_before),
+        parts, start, jumped = [], 0, False
+        while True:  # one stream per backward time jump
+            newest = np.maximum.accumulate(np.concatenate([[self._newest], stamps[start:]]))
+            jumps = np.flatnonzero(stamps[start:] < newest[:-1] - self.backward_ns)
+            end = stamps.size if jumps.size == 0 else start + int(jumps[0])
+            self._newest = int(newest[end - start])
+            sl = slice(start, end)
+            part = self._classify(stamps[sl], accel[sl], speed[sl],
+                                  None if frame_ids is None else frame_ids[sl])
+            part.reset_before[:1] |= jumped  # time went backwards here: a new stream
+            parts.append(part)
+            if end == stamps.size:
+                break
+            self.reset()
+            self.counters['time_reset'] += 1
+            start, jumped = end, True
+        if len(parts) == 1:
+            return parts[0]
+        return Clean(*(np.concatenate(f) for f in zip(
+            *((p.stamps_ns, p.accel, p.speed, p.synthetic, p.reset_before) for p in parts),
             strict=True)))
 
     def _stuck(self, stamps: np.ndarray, accel: np.ndarray, ok: np.ndarray) -> np.ndarray:
