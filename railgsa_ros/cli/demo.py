@@ -74,7 +74,6 @@ def run_live(bag: Path, out: Path, duration_s: float) -> Path:
         for topic in LIVE_TOPICS[:2]:  # both nodes are up and their outputs are subscribed
             if not recorder.wait_for_line(rf'recording {topic} \(', 120.0):
                 raise RailGsaError(f'no publisher of {topic} after 120 s: see {out / "logs"}')
-        time.sleep(3.0)  # the replay waits for one subscriber per topic: let both nodes' match
         print(f'replaying {bag} into {", ".join(NODES)} ...', flush=True)
         replay = system.command('replay', str(bag), '--topics', '/imu/data', '/odom',
                                 '--wait-for-subscribers', '30')
@@ -88,6 +87,8 @@ def run_live(bag: Path, out: Path, duration_s: float) -> Path:
 
 def live_summary(record: Path, run: Any) -> list[str]:
     """Accuracy of the recorded irregularity against the truth and the nodes' counters."""
+    import numpy as np
+
     from railgsa_ros.bag import read_stamped
     from railgsa_ros.bag.messages import POINT_STAMPED
     from railgsa_ros.inverse.score import score
@@ -95,7 +96,8 @@ def live_summary(record: Path, run: Any) -> list[str]:
     irr = read_stamped(record, '/track/irregularity', POINT_STAMPED.msgtype)
     lines = [f'  /track/irregularity: {irr.stamps_ns.size} of {run.stamps_ns.size} samples '
              'emitted (the last band delay stays pending)']
-    chainage = irr.values[:, 0] + run.chainage_m[0]
+    t0 = run.stamps_ns[0]  # chainage from the stamps: right even if a node missed the head
+    chainage = np.interp(irr.stamps_ns - t0, run.stamps_ns - t0, run.chainage_m)
     if irr.stamps_ns.size and chainage[-1] - chainage[0] > 2 * SCORE_MARGIN_M + 2 * DIP[1]:
         s = score(chainage, irr.values[:, 2], run.chainage_m, run.truth_u_m, defect=DIP,
                   margin_m=SCORE_MARGIN_M)
