@@ -6,8 +6,8 @@ Chunks of 0..2500 samples continue the stream or jump (a gap, a huge step forwar
 a little or far, anywhere in the header-stamp range 1 ns .. 2^31 s) and carry injected faults:
 accelerations NaN, +-inf, subnormal, 1e308 or any float, duplicated and backward stamps, stuck
 stretches, wrong frame ids; speeds up to +-1 km/s (odometry), +-200 m/s for the Kalman
-method (faster ones: see the xfails below). Nothing raises, every emitted value is finite,
-and every sample is counted exactly once: accepted or rejected by one reason.
+method (absurd ones: the regression tests at the end). Nothing raises, every emitted value
+is finite, and every sample is counted exactly once: accepted or rejected by one reason.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ FAULT_VALUES = st.one_of(st.floats(), st.sampled_from(
 FAULTS = st.lists(st.tuples(st.floats(0, 1, exclude_max=True),
                             st.sampled_from(['value', 'duplicate', 'backward', 'stuck',
                                              'frame']), FAULT_VALUES), max_size=8)
-#: speeds as odometry may send them (any finite value up to 1 km/s; beyond: see the xfail)
+#: speeds as odometry may send them (any finite value up to 1 km/s)
 SPEEDS = st.one_of(st.floats(-1e3, 1e3), st.floats(-50, 80), st.just(40.0))
 BANK_SPEEDS = st.one_of(st.floats(-200, 200), st.just(40.0))
 
@@ -183,11 +183,8 @@ def test_bank_emitted_output(bank: Any) -> None:
     """The bank fuzz above reached the band output (runs after it)."""
     assert bank[0].counters.get('emitted', 0) > 1000, bank[0].counters
 
-# ------------------------------------------------------------------ found by fuzzing (owners)
-@pytest.mark.xfail(strict=True, raises=RecursionError, reason=(
-    'inverse/sanitize.py: process() recurses once per backward time jump, so a batch from '
-    'two interleaved clocks (2000 samples, every other one 10 s ahead) exceeds the recursion '
-    'limit; reported to the lead (owner: lifecycle/sanitize)'))
+
+# ------------------------------------------------------------- regressions found by fuzzing
 def test_interleaved_clocks_in_one_batch() -> None:
     k = np.arange(2000)
     stamps = 10**12 + (k // 2) * PERIOD_NS + (k % 2) * 10 * NS
@@ -196,10 +193,6 @@ def test_interleaved_clocks_in_one_batch() -> None:
     assert san.counters['time_reset'] > 0 and clean.stamps_ns.size > 0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'inverse/kalman.py: the Kalman design uses max(|speed|, min_design_speed_mps) without the '
-    'max_speed_mps hold the band stage has, so odometry in wrong units (1e5 m/s) raises '
-    'LinAlgError/ValueError from solve_discrete_are; reported to the lead'))
 @pytest.mark.parametrize('speed', [1e5, 1e12])
 def test_kalman_with_absurd_odometry_speed(speed: float) -> None:
     pipe = InversionPipeline(InversionConfig(method='kalman'))
@@ -207,11 +200,6 @@ def test_kalman_with_absurd_odometry_speed(speed: float) -> None:
     assert np.all(np.isfinite(out.u_m))
 
 
-
-@pytest.mark.xfail(strict=True, reason=(
-    'inverse/pipeline.py: the chainage integrates any finite speed, so one odometry message of '
-    '1e308 m/s overflows it to inf, and every later output carries chainage inf (a 1e200 m/s '
-    'one freezes it at 1e200); the nodes pass such speeds on; reported to the lead'))
 def test_absurd_odometry_speed_keeps_the_chainage_finite() -> None:
     pipe = InversionPipeline(config())
     stamps = NS + np.arange(3000) * PERIOD_NS

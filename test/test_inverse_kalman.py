@@ -43,7 +43,7 @@ def _record(speed, seconds, noise, seed=0):
 
 def test_filter_is_stable_and_chunk_invariant():
     _, y = _record(20.0, 4.0, 5e-3)
-    kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.02, 10.0)
+    kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.02, 10.0, 70.0)
     assert kf.design.spectral_radius < 1.0
     whole = kf.process(y)
     kf.reset()
@@ -55,7 +55,7 @@ def test_filter_is_stable_and_chunk_invariant():
 
 def test_smoother_beats_filter_and_tracks_truth():
     truth, y = _record(20.0, 12.0, 5e-3)
-    kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.02, 10.0)
+    kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.02, 10.0, 70.0)
     filt, smooth = kf.process(y)[0], kf.smooth(y)[0]
     mid = slice(3000, 9000)  # scored away from the ends, after removing the unobservable trend
     def detrend(z):
@@ -67,7 +67,7 @@ def test_smoother_beats_filter_and_tracks_truth():
 
 
 def test_set_speed_redesigns_only_beyond_tolerance():
-    kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.05, 10.0)
+    kf = KalmanInverse(NOMINAL, GERMAN_AV['low'], 1e-6, 2.5e-5, 1e-3, 20.0, 0.05, 10.0, 70.0)
     assert not kf.set_speed(20.5)
     assert kf.set_speed(25.0)
     assert kf.design.speed == 25.0

@@ -107,7 +107,8 @@ def test_declare_and_merged(ros_context: Any) -> None:
         return Node('declare_test', context=ros_context,
                     parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
     assert declare(node(rate=250.0), specs) == {'rate': 250.0, 'mode': 'a'}
-    for overrides, why in (({'rate': 5000.0}, 'rate'), ({'rate': 5}, 'expected a float'),
+    assert declare(node(rate=5), specs)['rate'] == 5.0  # an integer for a float is accepted
+    for overrides, why in (({'rate': 5000.0}, 'rate'), ({'rate': 'fast'}, 'float'),
                            ({'mode': 'c'}, 'one of a, b')):
         with pytest.raises(ConfigError, match=why):
             declare(node(**overrides), specs)

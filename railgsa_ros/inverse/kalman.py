@@ -102,20 +102,26 @@ class KalmanInverse:
     """
 
     def __init__(self, theta: np.ndarray, av: float, bias_walk: float, noise_var: float,
-                 dt: float, speed_mps: float, tolerance: float, min_speed_mps: float) -> None:
+                 dt: float, speed_mps: float, tolerance: float, min_speed_mps: float,
+                 max_speed_mps: float) -> None:
         self.theta = np.atleast_2d(theta)
         self.av, self.bias_walk, self.noise_var, self.dt = av, bias_walk, noise_var, dt
-        self.tolerance, self.min_speed = tolerance, min_speed_mps
+        self.tolerance = tolerance
+        self.min_speed, self.max_speed = min_speed_mps, max_speed_mps
         self.design = self._design(speed_mps)
         self._bank = StateSpaceBank(self.design.filter_system())
 
+    def _held(self, speed: float) -> float:
+        """Design speed (m/s): |speed| held in [min_speed, max_speed], as the band stage does."""
+        return min(max(abs(speed), self.min_speed), self.max_speed)
+
     def _design(self, speed: float) -> KalmanDesign:
-        return KalmanDesign(self.theta, max(abs(speed), self.min_speed), self.av,
-                            self.bias_walk, self.noise_var, self.dt)
+        return KalmanDesign(self.theta, self._held(speed), self.av, self.bias_walk,
+                            self.noise_var, self.dt)
 
     def set_speed(self, speed_mps: float) -> bool:
         """Redesign for a new speed (m/s) when needed; True when the gains changed."""
-        v = max(abs(speed_mps), self.min_speed)
+        v = self._held(speed_mps)
         if abs(v - self.design.speed) <= self.tolerance * self.design.speed:
             return False
         self.design = self._design(v)

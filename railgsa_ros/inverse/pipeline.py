@@ -40,7 +40,7 @@ from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.feedback import FeedbackInverse, Stability
 from railgsa_ros.inverse.kalman import KalmanInverse
 from railgsa_ros.inverse.multirate import MultirateFir, antialias_taps, decimation, rolloff
-from railgsa_ros.inverse.sanitize import Clean, InputSanitizer
+from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
@@ -133,7 +133,7 @@ class InversionPipeline:
             self._stage = KalmanInverse(self.theta, cfg.track_spectrum_av, cfg.bias_walk_mps2,
                                         var, self.dt,
                                         cfg.speed_mps, cfg.speed_tolerance,
-                                        cfg.min_design_speed_mps)
+                                        cfg.min_design_speed_mps, cfg.max_speed_mps)
         self._fir: PartitionedFir | MultirateFir | None = None
         self.delay_samples = 0
         self.decimation = 1
@@ -283,7 +283,8 @@ class InversionPipeline:
 
     def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Trapezoidal integral of speed over the stamps, continued across calls (m); time going
-        backwards (a time reset) adds no distance."""
+        backwards (a time reset) adds no distance; speeds beyond SPEED_LIMIT_MPS count as that."""
+        speed = np.clip(speed, -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS)
         t0, c0, v0 = self._chain if self._chain is not None else \
             (stamps[0], self.start_chainage_m, speed[0])
         t = np.concatenate([[t0], stamps])

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: fastest plausible rail vehicle (m/s, 720 km/h): odometry beyond it is a unit or data error
+SPEED_LIMIT_MPS = 200.0
 REASONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
 
 

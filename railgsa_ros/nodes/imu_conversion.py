@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS
+
 NS_PER_S = 1_000_000_000
 _NAN3 = (float('nan'),) * 3
 _BAD = (0, 0, '', _NAN3, float('nan'), _NAN3)
@@ -78,13 +80,15 @@ def imu_batch(msgs: Sequence[Any]) -> ImuBatch:
                     malformed=malformed)
 
 def odom_speed(msg: Any) -> tuple[int, float] | None:
-    """(stamp ns, forward speed twist.twist.linear.x in m/s), or None if malformed/non-finite."""
+    """(stamp ns, forward speed twist.twist.linear.x in m/s), or None if malformed, non-finite or
+    beyond SPEED_LIMIT_MPS."""
     try:
         stamp = msg.header.stamp
         sec, nsec = int(stamp.sec), int(stamp.nanosec)
         speed = float(msg.twist.twist.linear.x)
     except (AttributeError, TypeError, ValueError, OverflowError):
         return None
-    if sec < 0 or not 0 <= nsec < NS_PER_S or (sec == 0 and nsec == 0) or not np.isfinite(speed):
+    if (sec < 0 or not 0 <= nsec < NS_PER_S or (sec == 0 and nsec == 0)
+            or not abs(speed) <= SPEED_LIMIT_MPS):
         return None
     return sec * NS_PER_S + nsec, speed
