@@ -4,12 +4,16 @@ When the process was started as a node (``python -m railgsa_ros.nodes.<node>`` o
 script), importing this module replaces the SIGINT and SIGTERM handlers with one that raises
 ``SystemExit(0)`` once (later signals are ignored): a stop request during the heavy imports, during
 ``rclpy.init`` or while the node is built ends the process quietly with code 0, and ``finally``
-blocks still run. rclpy's own handlers, installed later, chain to it. Imported by anything else
+blocks still run. A signal that lands inside an import exits at once with ``os._exit(0)``
+instead: an exception raised there is turned into an ImportError by rclpy's extension loader
+(rc 1 and a traceback), and nothing needs cleaning up before the node exists. rclpy's own
+handlers, installed later, chain to it. Imported by anything else
 (tests, the CLI) it changes nothing. No ROS import.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 import signal
 import sys
@@ -19,9 +23,21 @@ from types import FrameType
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-def _exit_once(_signum: int, _frame: FrameType | None) -> None:
+def _inside_import(frame: FrameType | None) -> bool:
+    """Whether the interrupted frame runs under the import machinery."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith('<frozen importlib'):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _exit_once(_signum: int, frame: FrameType | None) -> None:
     for sig in SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
+    if _inside_import(frame):
+        sys.stdout.flush()
+        os._exit(0)
     raise SystemExit(0)
 
 
