@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+import math
 from pathlib import Path
 from typing import Any
 
@@ -54,3 +55,35 @@ def ros_parameters(doc: Any, node_name: str) -> dict[str, Any]:
         if isinstance(section, dict) and isinstance(section.get('ros__parameters'), dict):
             return section['ros__parameters']
     return {}
+
+
+def check_field(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
+    """Coerce a dataclass field's ``value`` to the type of its ``default`` and check it against
+    the field metadata: ``choices`` for strings, inclusive ``bounds`` for numbers (ConfigError
+    naming the field otherwise)."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f'{name}: expected true or false, got {value!r}')
+        return value
+    if isinstance(default, str):
+        if not isinstance(value, str) or (meta['choices'] and value not in meta['choices']):
+            allowed = ', '.join(meta['choices']) or 'a string'
+            raise ConfigError(f'{name}: expected {allowed}, got {value!r}')
+        return value
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f'{name}: expected a number, got {value!r}') from None
+    except OverflowError:  # an int beyond the float range (its repr may be too long to print)
+        raise ConfigError(f'{name}: expected a finite number, got an integer beyond the float '
+                          'range') from None
+    if isinstance(value, bool) or not math.isfinite(number):
+        raise ConfigError(f'{name}: expected a finite number, got {value!r}')
+    low, high = meta.get('bounds') or (-math.inf, math.inf)
+    if not low <= number <= high:
+        raise ConfigError(f'{name}: {value!r} is outside [{low:g}, {high:g}]')
+    if isinstance(default, int):
+        if number != int(number):
+            raise ConfigError(f'{name}: expected an integer, got {value!r}')
+        return int(number)
+    return number

@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from railgsa_ros.config import key_list, load_yaml, ros_parameters
+from railgsa_ros.config import check_field, key_list, load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.feedback import UNSUPPORTED, check_gain
 
@@ -109,37 +109,11 @@ class InversionConfig:
 
 
 def _check(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
-    """Coerce ``value`` to the type of ``default`` and check choices/bounds."""
+    """``config.check_field`` plus the refused methods and the gain's stability check."""
     if name == 'method' and value in ('analytical', 'flatness'):
         raise ConfigError(f'method: {UNSUPPORTED[value]}')
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f'{name}: expected true or false, got {value!r}')
-        return value
-    if isinstance(default, str):
-        if not isinstance(value, str) or (meta['choices'] and value not in meta['choices']):
-            allowed = ', '.join(meta['choices']) or 'a string'
-            raise ConfigError(f'{name}: expected {allowed}, got {value!r}')
-        return value
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f'{name}: expected a number, got {value!r}') from None
-    except OverflowError:  # an int beyond the float range (its repr may be too long to print)
-        raise ConfigError(f'{name}: expected a finite number, got an integer beyond the float '
-                          'range') from None
-    if isinstance(value, bool) or not math.isfinite(number):
-        raise ConfigError(f'{name}: expected a finite number, got {value!r}')
-    if name == 'gain':
-        return check_gain(number)
-    low, high = meta['bounds']
-    if not low <= number <= high:
-        raise ConfigError(f'{name}: {value!r} is outside [{low:g}, {high:g}]')
-    if isinstance(default, int):
-        if number != int(number):
-            raise ConfigError(f'{name}: expected an integer, got {value!r}')
-        return int(number)
-    return number
+    number = check_field(name, value, default, meta)
+    return check_gain(number) if name == 'gain' else number
 
 
 def load_config(path: str | Path) -> InversionConfig:

@@ -10,11 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
-import math
 from pathlib import Path
 from typing import Any
 
-from railgsa_ros.config import key_list, load_yaml, ros_parameters
+from railgsa_ros.config import check_field, key_list, load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.uq.germ import GERMS
@@ -55,8 +54,8 @@ class UncertaintyConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             if f.name != 'inversion':
-                object.__setattr__(self, f.name,
-                                   _check(f.name, getattr(self, f.name), f.default, f.metadata))
+                value = check_field(f.name, getattr(self, f.name), f.default, f.metadata)
+                object.__setattr__(self, f.name, value)
         unknown = sorted(set(self.qois) - set(QOIS))
         if unknown:
             raise ConfigError(f'qoi: unknown quantity {unknown[0]!r}; expected any of '
@@ -88,30 +87,6 @@ class UncertaintyConfig:
     def with_(self, **changes: Any) -> UncertaintyConfig:
         """A validated copy with some fields changed."""
         return replace(self, **changes)
-
-
-def _check(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
-    """Coerce ``value`` to the type of ``default``; check choices and bounds."""
-    if isinstance(default, str):
-        if not isinstance(value, str) or (meta['choices'] and value not in meta['choices']):
-            allowed = ', '.join(meta['choices']) or 'a string'
-            raise ConfigError(f'{name}: expected {allowed}, got {value!r}')
-        return value
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f'{name}: expected a number, got {value!r}') from None
-    except OverflowError:  # an int beyond the float range (its repr may be too long to print)
-        raise ConfigError(f'{name}: expected a finite number, got an integer beyond the float '
-                          'range') from None
-    low, high = meta['bounds']
-    if isinstance(value, bool) or not math.isfinite(number) or not low <= number <= high:
-        raise ConfigError(f'{name}: {value!r} is not a number in [{low:g}, {high:g}]')
-    if isinstance(default, int):
-        if number != int(number):
-            raise ConfigError(f'{name}: expected an integer, got {value!r}')
-        return int(number)
-    return number
 
 
 def load_config(path: str | Path) -> UncertaintyConfig:
