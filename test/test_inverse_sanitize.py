@@ -84,3 +84,42 @@ def test_frame_mask_helper():
     assert frame_mask(None, 'imu_link') is None
     assert frame_mask(np.array(['a', 'b']), '') is None
     assert frame_mask(np.array(['imu_link', 'x']), 'imu_link').tolist() == [True, False]
+
+
+def test_clean_chunk_fast_path_matches_the_full_classification():
+    """Chunks that are clean, or clean but for one edge (a stamp equal to the last one, a step
+    at or just past the gap limit, a backward jump, NaN, saturation, an extreme stamp), give the
+    same samples, state and counters with the fast path as with the full classification (forced
+    by a stuck detector that never fires)."""
+    rng = np.random.default_rng(3)
+    chunks = []
+    start = 0
+    for edge in range(9):
+        t = stamps(50, start)
+        a = 9.8 + 0.01 * rng.standard_normal(50)
+        speed = 20.0 if edge % 2 else np.full(50, 20.0)
+        if edge == 1:
+            t -= MS  # first stamp equals the last accepted one
+        elif edge == 2:
+            t[10:] += 2 * MS  # a step of exactly gap_factor periods: no gap
+        elif edge == 3:
+            t[10:] += 2 * MS + 1  # one nanosecond more: a gap
+        elif edge == 4:
+            t -= 10**10  # backward jump: a time reset
+        elif edge == 5:
+            a[7] = np.nan
+        elif edge == 6:
+            a[9] = -19.55  # beyond the saturation limit of 19.5
+        elif edge == 7:
+            t[-1] = np.iinfo(np.int64).max  # a step wrapping around in int64
+        chunks.append((t, a, speed))
+        start = int(t[-1] // MS) + 1 if edge != 7 else int(t[-2] // MS) + 2
+    fast = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1)
+    full = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1,
+                          stuck_s=1e6)
+    for t, a, speed in chunks:
+        got, want = fast.process(t, a, speed), full.process(t, a, speed)
+        for field in ('stamps_ns', 'accel', 'speed', 'synthetic', 'reset_before'):
+            assert np.array_equal(getattr(got, field), getattr(want, field)), field
+        assert fast._last == full._last and fast._newest == full._newest
+    assert fast.counters == full.counters

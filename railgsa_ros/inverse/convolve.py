@@ -68,7 +68,7 @@ class _Level:
                 acc += self.gains[q][None] * ext[k - q:k - q + new.size]
             out = fft.irfft(acc, n=2 * s, axis=-1)[..., s:]  # (M, C, s)
             self.spectra = ext[::-1][:self.n_part].copy()
-            blocks.extend(out)
+            blocks.append(np.moveaxis(out, 0, 1).reshape(out.shape[1], -1))  # (C, M s)
         flat = np.concatenate(blocks, axis=-1)
         start = n0 - first * s
         self.current = flat[:, -s:]

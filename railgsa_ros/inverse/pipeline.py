@@ -284,12 +284,31 @@ class InversionPipeline:
     def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Trapezoidal integral of speed over the stamps, continued across calls (m); time going
         backwards (a time reset) adds no distance; speeds beyond SPEED_LIMIT_MPS count as that."""
-        speed = np.clip(speed, -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS)
+        constant = speed.strides == (0,)  # one speed broadcast over the chunk
+        if constant:
+            speed = np.broadcast_to(np.clip(speed[:1], -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS),
+                                    speed.shape)
+        else:
+            speed = np.clip(speed, -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS)
         t0, c0, v0 = self._chain if self._chain is not None else \
             (stamps[0], self.start_chainage_m, speed[0])
-        t = np.concatenate([[t0], stamps])
-        v = np.concatenate([[v0], speed])
-        chain = c0 + np.cumsum(0.5 * (v[1:] + v[:-1]) * np.maximum(np.diff(t), 0) * 1e-9)
+        # in place, in the order of c0 + cumsum(0.5 (v[k] + v[k-1]) max(t[k] - t[k-1], 0) 1e-9)
+        steps = np.empty(stamps.size, np.int64)
+        steps[0] = stamps[0] - t0
+        np.subtract(stamps[1:], stamps[:-1], out=steps[1:])
+        np.maximum(steps, 0, out=steps)
+        chain = np.empty(stamps.size)
+        if constant:  # 0.5 (v + v) is v exactly (|v| <= SPEED_LIMIT_MPS: no overflow)
+            np.multiply(steps, speed[0], out=chain)
+            chain[0] = 0.5 * (v0 + speed[0]) * steps[0]
+        else:
+            chain[0] = v0 + speed[0]
+            np.add(speed[1:], speed[:-1], out=chain[1:])
+            chain *= 0.5
+            chain *= steps
+        chain *= 1e-9
+        np.cumsum(chain, out=chain)
+        chain += c0
         self._chain = (int(stamps[-1]), float(chain[-1]), float(speed[-1]))
         return chain
 

@@ -80,6 +80,8 @@ class InputSanitizer:
         stamps = np.asarray(stamps_ns, dtype=np.int64)
         accel = np.asarray(accel, dtype=float)
         speed = np.broadcast_to(np.asarray(speed, dtype=float), accel.shape)
+        if self._all_clean(stamps, accel, speed, frame_ids):
+            return self._accept_all(stamps, accel, speed)
         parts, start, jumped = [], 0, False
         while True:  # one stream per backward time jump
             newest = np.maximum.accumulate(np.concatenate([[self._newest], stamps[start:]]))
@@ -101,6 +103,42 @@ class InputSanitizer:
         return Clean(*(np.concatenate(f) for f in zip(
             *((p.stamps_ns, p.accel, p.speed, p.synthetic, p.reset_before) for p in parts),
             strict=True)))
+
+    def _all_clean(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray,
+                   frame_ids: np.ndarray | None) -> bool:
+        """True when the full classification would accept every sample of the chunk and find
+        no gap and no time reset: frames and stuck detection off, every |accel| below the
+        saturation limit (so finite: NaN fails every comparison), speed finite, stamps strictly
+        increasing from the newest accepted one with steps up to the gap limit, and the first
+        stamp no backward jump. A handful of reductions instead of the per-sample masks."""
+        if stamps.size == 0 or frame_mask(frame_ids, self.frame_id) is not None or \
+                np.isfinite(self.stuck_ns):
+            return False
+        speed = speed[:1] if speed.strides == (0,) else speed  # one value broadcast
+        if not (accel.max() < self.limit and accel.min() > -self.limit
+                and speed.max() < np.inf and speed.min() > -np.inf):
+            return False
+        first = stamps[0]
+        if self._last is not None:
+            if not (first > self._last[0] and first - self._last[0] <= self.gap_ns):
+                return False
+        elif first == np.iinfo(np.int64).min:  # equal to the initial newest: a duplicate
+            return False
+        if first < self._newest - self.backward_ns:
+            return False
+        if stamps.size == 1:
+            return True
+        # ordered by comparison, gaps by the int64 difference, both as the full classification
+        return bool(np.all(stamps[1:] > stamps[:-1])
+                    and (stamps[1:] - stamps[:-1]).max() <= self.gap_ns)
+
+    def _accept_all(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray) -> Clean:
+        """Outcome of the classification for a chunk that ``_all_clean`` passed."""
+        n = stamps.size
+        self._newest = max(self._newest, int(stamps[-1]))
+        self._last = (int(stamps[-1]), float(accel[-1]), float(speed[-1]))
+        self.counters.update({**dict.fromkeys(REASONS, 0), 'accepted': n, 'gap': 0})
+        return Clean(stamps, accel, speed, np.zeros(n, bool), np.zeros(n, bool))
 
     def _stuck(self, stamps: np.ndarray, accel: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """True where an ok sample repeats the current run's value for longer than stuck_s."""
