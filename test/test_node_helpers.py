@@ -126,6 +126,7 @@ def test_qos_profiles() -> None:
 
     assert sensor_qos().reliability == ReliabilityPolicy.BEST_EFFORT
     assert sensor_qos().depth >= MIN_SENSOR_DEPTH >= 300
+    assert sensor_qos(500, 'reliable').reliability == ReliabilityPolicy.RELIABLE
     assert output_qos().reliability == ReliabilityPolicy.RELIABLE and output_qos(7).depth == 7
 
 

@@ -173,3 +173,12 @@ def test_qos_from_recording_or_type() -> None:
     latched = qos(True, 1)._replace(durability=QosDurability.TRANSIENT_LOCAL)
     odom.offered_qos = [latched, qos(False, 1)._replace(reliability=QosReliability.UNKNOWN)]
     assert choose_qos(odom, 1.0).transient_local and choose_qos(odom, 1.0).reliable
+
+
+def test_reliable_override_keeps_ten_seconds_or_the_whole_topic() -> None:
+    imu = TopicInfo('/imu/data', 'sensor_msgs/msg/Imu', 20_001, [qos(False, 5)], 0, 20_000 * MS)
+    assert (choose_qos(imu, 5.0, reliable=True).reliable,
+            choose_qos(imu, 5.0, reliable=True).depth) == (True, 20_001)  # the whole topic
+    assert choose_qos(imu, 1.0, reliable=True).depth == 10_000  # 10 s at 1 kHz
+    odom = TopicInfo('/odom', 'nav_msgs/msg/Odometry', 3, [], 0, 20_000 * MS)
+    assert choose_qos(odom, 1.0, reliable=True).depth == 10  # never below the usual minimum

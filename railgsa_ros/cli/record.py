@@ -25,6 +25,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    'disk loses at most the file in progress')
     p.add_argument('--no-compress', dest='compress', action='store_false',
                    help='write uncompressed MCAP chunks (default zstd)')
+    p.add_argument('--depth', type=int, default=1000, metavar='N',
+                   help='reader history per topic, messages (default 1000, one second at 1 kHz); '
+                   'size it to the longest burst, e.g. the whole run for a faster-than-real-time '
+                   'replay')
     p.set_defaults(func=run)
 
 
@@ -35,5 +39,5 @@ def run(args: argparse.Namespace) -> int:
         from railgsa_ros.nodes import recorder
 
         values = {'out': args.out, 'duration': args.duration, 'split': args.split,
-                  'compress': args.compress, 'topics': args.topics}
+                  'compress': args.compress, 'topics': args.topics, 'depth': args.depth}
         return recorder.run(args=[], parameters=values, stop=stop)

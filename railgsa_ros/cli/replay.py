@@ -34,6 +34,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    f'(default {DEFAULT_CLOCK_HZ:g} Hz when given)')
     p.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='S',
                    help='wait up to S seconds for every topic to be subscribed before playing')
+    p.add_argument('--min-subscribers', type=int, default=1, metavar='N',
+                   help='with --wait-for-subscribers: wait for N subscribers on every topic '
+                   '(default 1)')
+    p.add_argument('--reliable', action='store_true',
+                   help='publish every topic RELIABLE with a history of 10 s at the replay rate '
+                   '(for faster-than-real-time replays into reliable subscribers)')
     p.set_defaults(func=run)
 
 
@@ -45,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
         values = {'bag_path': args.bag, 'rate': args.rate, 'loop': args.loop,
                   'start_offset': args.start, 'duration': args.duration, 'clock_hz': args.clock,
-                  'wait_for_subscribers': args.wait_for_subscribers}
+                  'wait_for_subscribers': args.wait_for_subscribers,
+                  'min_subscribers': args.min_subscribers, 'reliable': args.reliable}
         values.update({k: v for k, v in (('topics', args.topics), ('remaps', args.remap)) if v})
         return bag_replay_node.run(args=[], parameters=values, stop=stop)

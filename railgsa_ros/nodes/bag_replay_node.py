@@ -3,8 +3,12 @@
 Parameters (all fixed at start-up): ``bag_path``, ``rate`` (x real time), ``loop``,
 ``start_offset`` and ``duration`` (s of bag time; duration 0 = to the end), ``topics`` (string
 array, empty = all), ``remaps`` (string array of ``FROM:=TO``), ``clock_hz`` (publish
-rosgraph_msgs/Clock on /clock at this wall-clock rate, 0 = off) and ``wait_for_subscribers`` (s to
-wait for every topic to be subscribed before playing, 0 = start at once). Topics whose type this
+rosgraph_msgs/Clock on /clock at this wall-clock rate, 0 = off), ``wait_for_subscribers`` (s to
+wait for every topic to be subscribed before playing, 0 = start at once), ``min_subscribers``
+(the number of subscribers each topic waits for) and ``reliable`` (publish
+every topic RELIABLE with a deep history, playback.qos.choose_qos, and wait up to ACK_TIMEOUT_S at
+the end until every subscriber acknowledged every message, as ``ros2 bag play
+--wait-for-all-acked``: a writer that is gone resends nothing). Topics whose type this
 ROS installation cannot import are skipped with a warning. The node exits when the bag is played
 (never with ``loop``).
 """
@@ -24,6 +28,7 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -61,8 +66,16 @@ SPECS = (
               bounds=(0.0, 1e4), read_only=True),
     ParamSpec('wait_for_subscribers', 0.0, 'wait up to this long (s) for every topic to have a '
               'subscriber before playing', bounds=(0.0, 3600.0), read_only=True),
+    ParamSpec('min_subscribers', 1, 'with wait_for_subscribers: the subscribers every topic '
+              'waits for', bounds=(1, 1000), read_only=True),
+    ParamSpec('reliable', False, 'publish every topic RELIABLE, with a history of 10 s at the '
+              'replay rate (at most the whole topic), so that slow readers lose nothing',
+              read_only=True),
 )
 ARRAYS = {'topics': 'topics to play (empty = all)', 'remaps': 'topic remaps FROM:=TO'}
+#: Longest wait (s) at the end of a reliable replay for the subscribers' acknowledgements.
+ACK_TIMEOUT_S = 60.0
+ACK_SLICE_S = 0.1  #: s per acknowledgement check, so that stop() ends the wait soon
 #: /clock QoS, as ros2 bag play: RELIABLE, KEEP_LAST 1 (use_sim_time subscribers are BEST_EFFORT).
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -117,6 +130,8 @@ class BagReplayNode(Node):
             duration_s=values['duration'], topics=tuple(arrays['topics']),
             remaps=parse_remaps(arrays['remaps']), clock_hz=values['clock_hz'])
         self.wait_s = values['wait_for_subscribers']
+        self.min_subscribers = values['min_subscribers']
+        self.reliable = values['reliable']
         self._stop = stop or threading.Event()
         self.source = BagSource(values['bag_path'])
         try:
@@ -140,7 +155,7 @@ class BagReplayNode(Node):
                 continue
             out = remap.get(name, name)
             self.publishers_by_topic[out] = self.create_publisher(
-                cls, out, qos_profile(choose_qos(info, self.options.rate)))
+                cls, out, qos_profile(choose_qos(info, self.options.rate, self.reliable)))
             self.topics.append(name)
         if not self.topics:
             raise InputError(f'{self.source.path}: no playable topic (types not available)')
@@ -149,17 +164,20 @@ class BagReplayNode(Node):
         self.window = window(self.source.start_ns, self.source.end_ns, self.options)
 
     def _wait_for_subscribers(self) -> None:
-        """Wait up to ``wait_for_subscribers`` s until every topic (and /clock) is subscribed."""
+        """Wait up to ``wait_for_subscribers`` s until every topic (and /clock) has
+        ``min_subscribers`` subscribers."""
         deadline = time.monotonic() + self.wait_s
         pubs = dict(self.publishers_by_topic)
         if self.clock_pub is not None:
             pubs['/clock'] = self.clock_pub
         lonely = list(pubs)
         while lonely and time.monotonic() < deadline and self._running():
-            lonely = [t for t in lonely if pubs[t].get_subscription_count() == 0]
+            lonely = [t for t in lonely
+                      if pubs[t].get_subscription_count() < self.min_subscribers]
             time.sleep(0.01)
         if lonely and self._running():
-            self.get_logger().warning(f'playing without subscribers on {", ".join(lonely)}')
+            self.get_logger().warning(f'playing with fewer than {self.min_subscribers} '
+                                      f'subscribers on {", ".join(lonely)}')
 
     def play(self) -> int:
         """Replay until the end (never with loop), ``stop()`` or shutdown; returns the number of
@@ -181,10 +199,24 @@ class BagReplayNode(Node):
             else:
                 self.publishers_by_topic[event.topic].publish(event.data)
                 published += 1
+        if self.reliable and self._running():
+            self._wait_for_acks()
         final_note(self, f'published {published} messages; lateness mean '
                          f'{pacer.late_mean_ns / 1e6:.3f} ms, max '
                          f'{pacer.late_max_ns / 1e6:.3f} ms')
         return published
+
+    def _wait_for_acks(self) -> None:
+        """Wait up to ACK_TIMEOUT_S (in slices, so that ``stop()`` ends it) until every
+        subscriber acknowledged every message; warn naming the topics that are not."""
+        deadline = time.monotonic() + ACK_TIMEOUT_S
+        pending = list(self.publishers_by_topic)
+        while pending and time.monotonic() < deadline and self._running():
+            pending = [t for t in pending if not self.publishers_by_topic[t].wait_for_all_acked(
+                Duration(seconds=ACK_SLICE_S))]
+        if pending and self._running():
+            self.get_logger().warning(f'not acknowledged after {ACK_TIMEOUT_S:g} s: '
+                                      f'{", ".join(pending)}')
 
     def stop(self) -> None:
         """Make ``play()`` return within one pacing slice (thread-safe)."""

@@ -1,6 +1,7 @@
 """IMU and odometry intake shared by the railgsa nodes.
 
-Subscribes ``imu/data`` (BEST_EFFORT, depth ``imu_qos_depth``) and, with ``use_odom``, ``odom``.
+Subscribes ``imu/data`` (depth ``imu_qos_depth``, ``imu_reliability``) and, with ``use_odom``,
+``odom`` (``odom_reliability``).
 The IMU callback takes the message it was called for plus every message already waiting in the
 reader history and hands them over as one list, so a busy node works on growing batches instead
 of falling behind. ``prepare`` turns such a list into arrays for a core ``push``: malformed
@@ -69,10 +70,11 @@ class ImuIntake:
             f'{node.get_name()}_imu_reader', context=node.context,
             namespace=node.get_namespace())
         self.sub = (self._reader or node).create_subscription(
-            Imu, 'imu/data', self._on_imu, sensor_qos(values['imu_qos_depth']))
+            Imu, 'imu/data', self._on_imu,
+            sensor_qos(values['imu_qos_depth'], values['imu_reliability']))
         self._odom_sub = node.create_subscription(
-            Odometry, 'odom', self._on_odom, sensor_qos(ODOM_DEPTH)) if values['use_odom'] \
-            else None
+            Odometry, 'odom', self._on_odom,
+            sensor_qos(ODOM_DEPTH, values['odom_reliability'])) if values['use_odom'] else None
 
     def destroy(self) -> None:
         """Destroy the subscriptions (and the helper reader node)."""

@@ -3,7 +3,9 @@
 Measured in rclpy (docs/nodes.md): a 1 kHz IMU stream through a reader history of depth 5 (the
 stock sensor-data profile) loses 2-8 % of the samples whenever the executor stalls, so inputs use
 a depth of at least 300 (default 1000, one second at 1 kHz). BEST_EFFORT subscriptions match both
-BEST_EFFORT and RELIABLE publishers; RELIABLE outputs serve both kinds of subscriber.
+BEST_EFFORT and RELIABLE publishers; RELIABLE outputs serve both kinds of subscriber. An input may
+be RELIABLE instead (a replay faster than real time): a sample the process cannot take in time is
+then resent instead of dropped in the transport, but only a RELIABLE publisher matches it.
 """
 
 from __future__ import annotations
@@ -16,12 +18,16 @@ SENSOR_DEPTH = 1000
 OUTPUT_DEPTH = 1000
 #: Minimum history depth accepted for a 1 kHz input.
 MIN_SENSOR_DEPTH = 300
+#: Values of the nodes' input reliability parameters, the live-sensor choice first.
+RELIABILITIES = ('best_effort', 'reliable')
 
 
-def sensor_qos(depth: int = SENSOR_DEPTH) -> QoSProfile:
-    """BEST_EFFORT, KEEP_LAST ``depth``, VOLATILE: for high-rate sensor inputs (imu, odom)."""
+def sensor_qos(depth: int = SENSOR_DEPTH, reliability: str = 'best_effort') -> QoSProfile:
+    """KEEP_LAST ``depth``, VOLATILE, BEST_EFFORT (or RELIABLE with ``reliability`` 'reliable'):
+    for high-rate sensor inputs (imu, odom)."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      reliability=ReliabilityPolicy.RELIABLE if reliability == 'reliable'
+                      else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.VOLATILE)
 
 

@@ -1,11 +1,13 @@
 """recorder: records topics as raw CDR into a rosbag2 MCAP bag (playback.recording.BagRecorder).
 
 Parameters (fixed at start-up): ``out`` (bag directory to create), ``topics`` (string array),
-``duration`` (s of wall time, 0 = until SIGINT/SIGTERM), ``split`` (s per storage file) and
-``compress`` (zstd chunks). A topic is subscribed as soon as a publisher of it appears, with the
-publishers' QoS (BEST_EFFORT if any of them is), and its offered QoS and type hash are stored.
-SIGINT/SIGTERM finish the bag (exit 0); a write error keeps the finished files readable and exits
-2 with one error line naming the file.
+``duration`` (s of wall time, 0 = until SIGINT/SIGTERM), ``split`` (s per storage file),
+``compress`` (zstd chunks) and ``depth`` (reader history per topic). A topic is subscribed as soon
+as a publisher of it appears, with the publishers' QoS (BEST_EFFORT if any of them is, else
+RELIABLE), and its offered QoS and type hash are stored. A reader history of ``depth`` buffers a
+burst faster than this process can write (size it like the publishers' writer history);
+SIGINT/SIGTERM write what is still waiting in it, then finish the bag (exit 0). A write error
+keeps the finished files readable and exits 2 with one error line naming the file.
 """
 
 from __future__ import annotations
@@ -45,15 +47,17 @@ from railgsa_ros.playback.schedule import absolute
 from railgsa_ros.playback.signals import stop_on_signals
 
 NAME = 'recorder'
+#: Default reader history (messages): one second at 1 kHz.
+DEPTH = 1000
 SPECS = (
     ParamSpec('out', '', 'bag directory to create', read_only=True),
     ParamSpec('duration', 0.0, 'recording time (s), 0 = until stopped', bounds=(0.0, 1e9),
               read_only=True),
     ParamSpec('split', 60.0, 'seconds per storage file', bounds=(0.1, 1e6), read_only=True),
     ParamSpec('compress', True, 'zstd-compress the MCAP chunks', read_only=True),
+    ParamSpec('depth', DEPTH, 'reader history per topic (messages)', bounds=(1, 1_000_000),
+              read_only=True),
 )
-#: Reader history (messages): one second at 1 kHz.
-DEPTH = 1000
 #: Period (s) of the topic discovery and of the flush/split check.
 DISCOVERY_S = 0.1
 FLUSH_S = 1.0
@@ -70,10 +74,11 @@ def bag_qos(profile: QoSProfile) -> Qos:
                profile.avoid_ros_namespace_conventions)
 
 
-def subscription_qos(offered: list[QoSProfile]) -> QoSProfile:
-    """RELIABLE only if every publisher is; TRANSIENT_LOCAL only if every publisher is."""
+def subscription_qos(offered: list[QoSProfile], depth: int = DEPTH) -> QoSProfile:
+    """KEEP_LAST ``depth``; RELIABLE only if every publisher is; TRANSIENT_LOCAL only if every
+    publisher is."""
     reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
-    profile = output_qos(DEPTH) if reliable else sensor_qos(DEPTH)
+    profile = output_qos(depth) if reliable else sensor_qos(depth)
     if all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered):
         profile.durability = DurabilityPolicy.TRANSIENT_LOCAL
     return profile
@@ -95,10 +100,11 @@ class RecorderNode(Node):
             raise ConfigError('parameter topics: no topic to record')
         self.waiting = list(dict.fromkeys(absolute(t) for t in topics))
         self.duration_s = values['duration']
+        self.depth = values['depth']
         self.bag = BagRecorder(values['out'], values['split'], values['compress'])
         self.started = time.monotonic()
         self.done = False
-        self._subs: list[Any] = []
+        self._subs: list[tuple[Any, str, Any]] = []  # (subscription, topic, message class)
         self.create_timer(DISCOVERY_S, self._discover)
         self.create_timer(FLUSH_S, self._flush)
         self.get_logger().info(f'recording {", ".join(self.waiting)} into {self.bag.path}')
@@ -120,9 +126,9 @@ class RecorderNode(Node):
             type_hash = str(getattr(infos[0], 'topic_type_hash', '') or '')
             self.bag.add_topic(TopicSpec(topic, msgtype, [bag_qos(p) for p in offered],
                                          type_hash if type_hash.startswith('RIHS') else ''))
-            self._subs.append(self.create_subscription(
-                cls, topic, partial(self._on_message, topic), subscription_qos(offered),
-                raw=True))
+            self._subs.append((self.create_subscription(
+                cls, topic, partial(self._on_message, topic),
+                subscription_qos(offered, self.depth), raw=True), topic, cls))
             self.get_logger().info(f'recording {topic} ({msgtype})')
 
     def _on_message(self, topic: str, data: bytes) -> None:
@@ -134,6 +140,17 @@ class RecorderNode(Node):
         self.bag.tick(self.get_clock().now().nanoseconds)
         if self.duration_s and time.monotonic() - self.started >= self.duration_s:
             self.done = True
+
+    def drain(self) -> None:
+        """Write the messages waiting in the reader histories, ``depth`` per topic at most (a
+        stop after a burst must not lose what was received but not yet written)."""
+        for sub, topic, cls in self._subs:
+            with sub.handle:
+                for _ in range(self.depth):
+                    taken = sub.handle.take_message(cls, True)
+                    if taken is None:
+                        break
+                    self._on_message(topic, taken[0])
 
     def finish(self) -> None:
         """Close the bag (finishing the file in progress) and log the count."""
@@ -159,6 +176,8 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
             executor.add_node(node)
             while not (stop.is_set() or node.done) and rclpy.ok():
                 executor.spin_once(timeout_sec=DISCOVERY_S)
+            if rclpy.ok():
+                node.drain()
         except ExternalShutdownException:
             pass
         finally:

@@ -2,7 +2,7 @@
 
 - INVERSION_SPECS: one per InversionConfig field (defaults = config/irregularity.yaml).
 - VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults.
-- NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, QoS depths,
+- NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, input QoS,
   stuck sensor and backward time limits).
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.nodes.params import ParamSpec
-from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, SENSOR_DEPTH
+from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
 from railgsa_ros.vehicle import PARAM_NAMES, PARAM_UNITS, VehicleParams, load_vehicle
 
 _VEHICLE_BOUNDS = {'m_s': (100.0, 1e5), 'm_us': (10.0, 1e4), 'k_s': (1e4, 1e8),
@@ -37,8 +37,13 @@ NODE_SPECS = (
               'missing, s', (0.01, 3600.0)),
     ParamSpec('wrong_frame_policy', 'reject', 'what to do with IMU samples whose frame_id is '
               'not frame_id (counted and warned once either way)', choices=('reject', 'accept')),
-    ParamSpec('imu_qos_depth', SENSOR_DEPTH, 'imu/data reader history (BEST_EFFORT), samples',
+    ParamSpec('imu_qos_depth', SENSOR_DEPTH, 'imu/data reader history, samples',
               (MIN_SENSOR_DEPTH, 100_000), read_only=True),
+    ParamSpec('imu_reliability', RELIABILITIES[0], 'imu/data subscription: best_effort (live '
+              'sensors) or reliable (a faster-than-real-time replay with a reliable publisher; '
+              'it matches no best-effort publisher)', choices=RELIABILITIES, read_only=True),
+    ParamSpec('odom_reliability', RELIABILITIES[0], 'odom subscription: best_effort or reliable',
+              choices=RELIABILITIES, read_only=True),
     ParamSpec('output_qos_depth', OUTPUT_DEPTH, 'per-sample output writer history (RELIABLE), '
               'samples', (1, 100_000), read_only=True),
     ParamSpec('hardware_id', 'imu', 'hardware_id on /diagnostics', read_only=True),
