@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 
@@ -15,3 +15,17 @@ def parameter_overrides(values: Mapping[str, Any]) -> list:
 
     return [Parameter(k, Parameter.Type.STRING_ARRAY, list(v)) if isinstance(v, (list, tuple))
             else Parameter(k, value=v) for k, v in values.items()]
+
+
+def console_main(run: Callable[[list[str] | None], int], args: list[str] | None = None) -> int:
+    """Console entry point around ``run(args)``: its exit code, or 2 with one line
+    ``error: <message>`` on stderr for a RailGsaError (bad input, bad parameters)."""
+    import sys
+
+    from railgsa_ros.errors import RailGsaError
+
+    try:
+        return run(args)
+    except RailGsaError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2

@@ -37,7 +37,7 @@ from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from railgsa_ros.errors import InputError, RailGsaError
-from railgsa_ros.nodes import parameter_overrides
+from railgsa_ros.nodes import console_main, parameter_overrides
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.playback.pacing import Pacer
 from railgsa_ros.playback.qos import QosChoice, choose_qos
@@ -255,11 +255,7 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point: exit 0 when done, 2 with a one-line error for bad input."""
-    try:
-        return run(args)
-    except RailGsaError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    return console_main(run, args)
 
 
 if __name__ == '__main__':

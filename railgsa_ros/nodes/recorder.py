@@ -37,8 +37,8 @@ from rosbags.interfaces import (
     QosTime,
 )
 
-from railgsa_ros.errors import ConfigError, RailGsaError
-from railgsa_ros.nodes import parameter_overrides
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.nodes import console_main, parameter_overrides
 from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import output_qos, sensor_qos
@@ -192,11 +192,7 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point: 0 when finished or interrupted, 2 with a one-line error."""
-    try:
-        return run(args)
-    except RailGsaError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+    return console_main(run, args)
 
 
 if __name__ == '__main__':
