@@ -25,7 +25,6 @@ import json
 import os
 from pathlib import Path
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -33,22 +32,10 @@ import time
 
 import numpy as np
 
+from railgsa_ros.system import reserve_domain
+
 SPEED_MPS = 20.0
 IMU_TOPIC, RELAY_TOPIC, OUT_TOPIC = 'imu/data', 'relay/imu', 'track/irregularity'
-
-
-def _reserve_domain() -> tuple[int, socket.socket]:
-    """A ROS_DOMAIN_ID in 1..100 held by binding TCP port 32768 + id on loopback (the
-    domain_coordinator convention); keep the socket open for the run."""
-    for domain in np.random.default_rng().permutation(np.arange(1, 101)):
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        try:
-            sock.bind(('127.0.0.1', 32768 + int(domain)))
-        except OSError:
-            sock.close()
-            continue
-        return int(domain), sock
-    raise RuntimeError('no free ROS_DOMAIN_ID in 1..100')
 
 
 def _ros_env(domain_id: int) -> dict[str, str]:
@@ -199,7 +186,7 @@ def _band_delay(diag: dict[str, str]) -> int | None:
 
 def drive(args: argparse.Namespace) -> int:
     """Start the processes, run, stop them with SIGINT and print the table."""
-    domain, _held = _reserve_domain()
+    domain, _held = reserve_domain()
     env = _ros_env(domain)
     me = [sys.executable, str(Path(__file__).resolve())]
     with tempfile.TemporaryDirectory(prefix='bench_node_latency_') as tmp:
@@ -263,11 +250,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('role', nargs='?', default='drive',
                         choices=['drive', 'publish', 'relay', 'receive'])
-    parser.add_argument('--duration', type=float, default=60.0, help='s of IMU data')
+    parser.add_argument('--duration', type=float, default=60.0,
+                        help='s of IMU data; more than the band delay (about 7 s) so that the '
+                        'node emits outputs')
     parser.add_argument('--rate', type=float, default=1000.0, help='IMU rate, Hz')
     parser.add_argument('--out', help='(internal) directory for the roles\' results')
     parser.add_argument('--readers', type=int, default=2, help='(internal) imu/data readers')
     args = parser.parse_args(argv)
+    if args.role == 'drive' and args.duration <= 10.0:
+        parser.error('--duration must exceed 10 s: the node emits nothing during its band delay')
     if args.role == 'drive':
         return drive(args)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'

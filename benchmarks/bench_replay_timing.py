@@ -13,12 +13,8 @@ drift accumulates).
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator
-from contextlib import contextmanager
 import os
 from pathlib import Path
-import random
-import socket
 import struct
 import subprocess
 import sys
@@ -28,25 +24,10 @@ import time
 import numpy as np
 
 from railgsa_ros.bag.messages import qos, typestore
+from railgsa_ros.system import isolated_domain
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS
-
-
-@contextmanager
-def reserve_domain() -> Iterator[int]:
-    """Export a ROS_DOMAIN_ID no one else on this machine holds (as domain_coordinator: a bound
-    localhost TCP port 32768 + id) for this run and its children."""
-    for domain in random.sample(range(1, 101), 100):
-        with socket.socket() as sock:
-            try:
-                sock.bind(('127.0.0.1', 32768 + domain))
-            except OSError:
-                continue
-            os.environ['ROS_DOMAIN_ID'] = str(domain)
-            yield domain
-            return
-    raise RuntimeError('no free ROS domain id')
 
 
 def write_bag(path: Path, seconds: float) -> np.ndarray:
@@ -143,7 +124,7 @@ def main() -> None:
         naive_player(args.naive[0], float(args.naive[1]))
         return
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    with reserve_domain(), tempfile.TemporaryDirectory() as tmp:
+    with isolated_domain(), tempfile.TemporaryDirectory() as tmp:
         bag = Path(tmp) / 'imu'
         stamps = write_bag(bag, args.seconds)
         print(f'1 kHz Imu bag, {stamps.size} messages, ROS_DOMAIN_ID '

@@ -34,9 +34,11 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # one BLAS thread before num
 
 import numpy as np
 
+from railgsa_ros.system import reserve_domain
+
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from bench_node_latency import _cpu_seconds, _reserve_domain, _ros_env  # noqa: E402
+from bench_node_latency import _cpu_seconds, _ros_env  # noqa: E402
 
 RATE_HZ = 1000
 SPEED_MPS = 30.0
@@ -159,7 +161,7 @@ class DiagnosticsTap:
 
 def soak_live(minutes: float) -> bool:
     """Both nodes as processes under a 1 kHz publisher; a row a minute. True when flat."""
-    domain, sock = _reserve_domain()
+    domain, sock = reserve_domain()
     env = _ros_env(domain)
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(domain))
     common = ['-p', 'use_odom:=false', '-p', f'speed_mps:={SPEED_MPS}']

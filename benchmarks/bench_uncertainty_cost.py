@@ -27,7 +27,6 @@ import json
 import os
 from pathlib import Path
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -36,6 +35,8 @@ import tracemalloc
 
 os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # before numpy: one BLAS thread
 import numpy as np
+
+from railgsa_ros.system import reserve_domain
 
 SPEED_MPS = 20.0
 CHUNK = 50
@@ -91,19 +92,6 @@ def in_core(duration_s: float) -> None:
 
 
 # ----------------------------------------------------------------------------- live
-def _reserve_domain() -> tuple[int, socket.socket]:
-    """A ROS_DOMAIN_ID held by binding TCP port 32768 + id on loopback (domain_coordinator)."""
-    for domain in np.random.default_rng().permutation(np.arange(1, 101)):
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        try:
-            sock.bind(('127.0.0.1', 32768 + int(domain)))
-        except OSError:
-            sock.close()
-            continue
-        return int(domain), sock
-    raise RuntimeError('no free ROS_DOMAIN_ID in 1..100')
-
-
 def _peak_mb(pid: int) -> float:
     """Peak resident memory (VmHWM) of a process, MB."""
     line = next(x for x in Path(f'/proc/{pid}/status').read_text().splitlines()
@@ -164,7 +152,7 @@ def role_publish(args: argparse.Namespace) -> None:
 
 def live(seconds: float) -> None:
     """Table 2: both nodes as processes at 1 kHz."""
-    domain, _held = _reserve_domain()
+    domain, _held = reserve_domain()
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(domain))
     params = ['-p', f'speed_mps:={SPEED_MPS}', '-p', 'use_odom:=false']
     with tempfile.TemporaryDirectory(prefix='bench_uncertainty_') as tmp:
