@@ -12,6 +12,10 @@ Topics: ``imu/data`` (sensor_msgs/Imu, BEST_EFFORT, depth 1 s of samples), ``odo
 
 from __future__ import annotations
 
+import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal from here on)
+
+# isort: split
+
 import sys
 
 from geometry_msgs.msg import PointStamped
@@ -26,6 +30,7 @@ from railgsa_ros.bag import RunEncoder
 from railgsa_ros.bag.messages import history_depth
 from railgsa_ros.errors import RailGsaError
 from railgsa_ros.imu import PRESETS
+from railgsa_ros.nodes import console_main
 from railgsa_ros.nodes.diagnostics import OK, WARN, DiagnosticsPublisher, Report
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, output_qos, sensor_qos
@@ -114,20 +119,17 @@ class ImuSimNode(Node):
         return Report(OK, 'publishing', values)
 
 
-def main(args: list[str] | None = None) -> int:
-    """Console script ``imu_sim_node``: spin until SIGINT/SIGTERM (exit 0); bad parameter ->
-    one-line error, exit 2."""
-    rclpy.init(args=args)
+def run(args: list[str] | None = None) -> int:
+    """Spin until SIGINT/SIGTERM (0); a bad parameter raises RailGsaError."""
     node = None
-    code = 0
     try:
+        rclpy.init(args=args)
         node = ImuSimNode()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RailGsaError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        code = 2
+    except RailGsaError:
+        raise
     except Exception:
         if rclpy.ok():  # a real error; after SIGINT/SIGTERM a callback may hit the closed context
             raise
@@ -135,7 +137,13 @@ def main(args: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return code
+    return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``imu_sim_node``: spin until SIGINT/SIGTERM (exit 0); bad parameter ->
+    one-line error, exit 2."""
+    return console_main(run, args)
 
 
 if __name__ == '__main__':
