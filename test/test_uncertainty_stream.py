@@ -16,7 +16,7 @@ from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream, offline_bands
 from railgsa_ros.uncertainty.config import load_config
-from railgsa_ros.uncertainty.stream import band_statistics
+from railgsa_ros.uncertainty.stream import band_statistics, order_statistics
 from railgsa_ros.uncertainty.surrogate import build_design
 from railgsa_ros.uncertainty.windows import WindowAnalyzer
 from railgsa_ros.uq import analyze
@@ -201,6 +201,39 @@ def test_band_quantiles_are_those_of_the_sampled_surrogate(run):
     for got, q in ((lower, 0.1), (upper, 0.8)):
         np.testing.assert_allclose(got, np.quantile(samples, q, axis=0), rtol=0,
                                    atol=1e-14 * scale)
+
+
+def test_band_quantiles_of_the_default_design_are_those_of_np_quantile(run):
+    """The default 1024 germ samples and 2.5/97.5 % quantiles take the piecewise selection of
+    order_statistics: the band is np.quantile's over the same surrogate samples, bit for bit up
+    to the last rounding of the products (same floats selected, same interpolation)."""
+    config = UncertaintyConfig(inversion=PAPER)
+    design = build_design(config, VehicleParams(), DISTS)
+    u = _bank(run, design.theta)[:, ::3]
+    lower, mean, upper = band_statistics(design, (0.025, 0.975), u)
+    coef = design.projector @ u
+    samples = coef[1:].T @ design.germ_basis  # (K, S) deviations, as band_statistics forms them
+    for got, q in ((lower, 0.025), (upper, 0.975)):
+        np.testing.assert_allclose(got, mean + np.quantile(samples, q, axis=1), rtol=1e-12,
+                                   atol=1e-15 * np.abs(mean).max())
+
+
+@pytest.mark.parametrize('size', [1024, 1000, 1001, 512, 256, 40])
+@pytest.mark.parametrize('ranks', [[25, 26, 997, 998], [0, 1, 30, 2], [-1, -2, 5],
+                                   [100, 101, 900, 901], [500, 511]])
+def test_order_statistics_are_those_of_a_full_sort(size, ranks):
+    """Bit for bit against np.sort: tails (piecewise selection), central ranks (full sort),
+    sizes that do or do not split into pieces, ties, NaN and infinities."""
+    rng = np.random.default_rng(size)
+    values = rng.standard_normal((37, size))
+    values[1] = np.round(values[1])  # ties
+    values[2, ::17] = np.nan
+    values[3, ::5] = np.inf
+    values[4, ::3] = -np.inf
+    values[5] = np.sort(values[5])[::-1]  # reversed
+    ranks = np.array([r % size for r in ranks])
+    np.testing.assert_array_equal(order_statistics(values, ranks),
+                                  np.sort(values, axis=1)[:, ranks])
 
 
 def test_deferred_windows_give_the_streamed_records(run):
