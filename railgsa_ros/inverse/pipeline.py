@@ -283,32 +283,26 @@ class InversionPipeline:
 
     def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Trapezoidal integral of speed over the stamps, continued across calls (m); time going
-        backwards (a time reset) adds no distance; speeds beyond SPEED_LIMIT_MPS count as that."""
+        backwards (a time reset) adds no distance; speeds beyond SPEED_LIMIT_MPS count as that.
+        The stamps of one segment piece increase strictly (the sanitiser's contract) except,
+        after a time reset, at the first sample."""
         constant = speed.strides == (0,)  # one speed broadcast over the chunk
-        if constant:
-            speed = np.broadcast_to(np.clip(speed[:1], -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS),
-                                    speed.shape)
-        else:
-            speed = np.clip(speed, -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS)
+        speed = np.clip(speed[:1] if constant else speed, -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS)
         t0, c0, v0 = self._chain if self._chain is not None else \
             (stamps[0], self.start_chainage_m, speed[0])
-        # in place, in the order of c0 + cumsum(0.5 (v[k] + v[k-1]) max(t[k] - t[k-1], 0) 1e-9)
-        steps = np.empty(stamps.size, np.int64)
-        steps[0] = stamps[0] - t0
-        np.subtract(stamps[1:], stamps[:-1], out=steps[1:])
-        np.maximum(steps, 0, out=steps)
-        chain = np.empty(stamps.size)
-        if constant:  # 0.5 (v + v) is v exactly (|v| <= SPEED_LIMIT_MPS: no overflow)
-            np.multiply(steps, speed[0], out=chain)
-            chain[0] = 0.5 * (v0 + speed[0]) * steps[0]
-        else:
-            chain[0] = v0 + speed[0]
-            np.add(speed[1:], speed[:-1], out=chain[1:])
-            chain *= 0.5
-            chain *= steps
-        chain *= 1e-9
-        np.cumsum(chain, out=chain)
-        chain += c0
+        first = max(int(stamps[0]) - int(t0), 0)  # ns since the previous sample
+        if constant:  # c0 + v0-v trapezoid of the first step + v (t - t[0]): no running sum
+            chain = (stamps - stamps[0]).astype(float)
+            chain *= speed[0] * 1e-9
+            chain += c0 + 0.5 * (v0 + speed[0]) * first * 1e-9
+        else:  # in the order of c0 + cumsum(0.5 (v[k] + v[k-1]) (t[k] - t[k-1]) 1e-9)
+            chain = np.empty(stamps.size)
+            chain[0] = (v0 + speed[0]) * first
+            np.subtract(stamps[1:], stamps[:-1], out=chain[1:])
+            chain[1:] *= speed[1:] + speed[:-1]
+            chain *= 0.5e-9
+            np.cumsum(chain, out=chain)
+            chain += c0
         self._chain = (int(stamps[-1]), float(chain[-1]), float(speed[-1]))
         return chain
 
@@ -327,55 +321,51 @@ class InversionPipeline:
         self._meta.extend(stamps, chain, speed, emit)
         per = self.switch_period
         n0 = self._n
-        bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per) - n0
+        bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per)  # segment sample indices
         outs = []
         lo = 0
-        for b in [*bounds.tolist(), a_s.size]:
-            if b < a_s.size and not self._redesign_due(n0 + b):
-                continue
+        while True:
+            v_kf, v_band = self._targets(bounds)
+            due = np.flatnonzero(np.isfinite(v_kf) | np.isfinite(v_band))
+            b = int(bounds[due[0]]) - n0 if due.size else a_s.size
             if b > lo:
                 x = u[:, lo:b] if u is not None else (
                     a_s[lo:b] if self._stage is None else self._stage.process(a_s[lo:b]))
                 if self._offset is None:
                     self._offset = np.atleast_2d(x)[:, :1].copy()
                 outs.append(self._band(np.atleast_2d(x) - self._offset))
-            if b < a_s.size:
-                self._redesign(n0 + b)
-            lo = b
-        return self._join(outs)
+            if not due.size:
+                return self._join(outs)
+            self._redesign(float(v_kf[due[0]]), float(v_band[due[0]]))
+            bounds, lo = bounds[due[0] + 1:], b
 
-    def _speed_at(self, n: int) -> float:
-        """Speed (m/s) of segment sample n, which is still in the delay line."""
-        return float(self._meta.speed[n - self._meta_start])
-
-    def _targets(self, n: int) -> tuple[float | None, float | None]:
-        """Design speeds due at switch boundary n (None: keep): Kalman gains for the newest
-        sample n, band for the output sample n - D; both held at min_design_speed_mps."""
+    def _targets(self, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Design speeds (m/s) due at switch boundaries n (segment sample indices still in the
+        delay line), NaN where the current design stays: Kalman gains for the newest sample n,
+        band for the output sample n - D; both held at min_design_speed_mps."""
         cfg = self.config
-        tol, vmin = cfg.speed_tolerance, cfg.min_design_speed_mps
-        v_kf = v_band = None
+        speed = self._meta.speed
+        keep = np.full(n.shape, np.nan)
+
+        def due(v: np.ndarray, current: float) -> np.ndarray:
+            return np.where(np.abs(v - current) > cfg.speed_tolerance * current, v, np.nan)
+
+        v_kf = v_band = keep
+        vmin = cfg.min_design_speed_mps
         if isinstance(self._stage, KalmanInverse):
-            v = max(abs(self._speed_at(n)), vmin)
-            current = self._stage.design.speed
-            v_kf = v if abs(v - current) > tol * current else None
+            v_kf = due(np.maximum(np.abs(speed[n - self._meta_start]), vmin),
+                       self._stage.design.speed)
         if self._fir is not None:
-            v = min(max(abs(self._speed_at(max(n - self.delay_samples, 0))), vmin),
-                    cfg.max_speed_mps)
-            current = self._design_speed
-            v_band = v if abs(v - current) > tol * current else None
+            v = np.abs(speed[np.maximum(n - self.delay_samples, 0) - self._meta_start])
+            v_band = due(np.minimum(np.maximum(v, vmin), cfg.max_speed_mps), self._design_speed)
         return v_kf, v_band
 
-    def _redesign_due(self, n: int) -> bool:
-        """True when a filter changes at switch boundary n."""
-        return self._targets(n) != (None, None)
-
-    def _redesign(self, n: int) -> None:
-        """Apply the designs due at switch boundary n."""
-        v_kf, v_band = self._targets(n)
-        if v_kf is not None:
+    def _redesign(self, v_kf: float, v_band: float) -> None:
+        """Apply the designs due (m/s; NaN: keep)."""
+        if np.isfinite(v_kf):
             self._stage.set_speed(v_kf)
             self._counters['redesign'] += 1
-        if v_band is not None:
+        if np.isfinite(v_band):
             self._fir.set_taps(fir_taps(self._response(v_band), self._half))
             self._design_speed = v_band
             self._counters['redesign'] += 1

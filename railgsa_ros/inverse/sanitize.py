@@ -128,9 +128,12 @@ class InputSanitizer:
             return False
         if stamps.size == 1:
             return True
-        # ordered by comparison, gaps by the int64 difference, both as the full classification
-        return bool(np.all(stamps[1:] > stamps[:-1])
-                    and (stamps[1:] - stamps[:-1]).max() <= self.gap_ns)
+        # steps as the int64 differences (stamps within 2^62 ns of each other cannot wrap; others
+        # go to the full classification, which compares them directly)
+        if int(stamps.max()) - int(stamps.min()) >= 1 << 62:
+            return False
+        steps = stamps[1:] - stamps[:-1]
+        return bool(steps.min() > 0 and steps.max() <= self.gap_ns)
 
     def _accept_all(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray) -> Clean:
         """Outcome of the classification for a chunk that ``_all_clean`` passed."""
