@@ -39,7 +39,13 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.feedback import FeedbackInverse, Stability
 from railgsa_ros.inverse.kalman import KalmanInverse
-from railgsa_ros.inverse.multirate import MultirateFir, antialias_taps, decimation, rolloff
+from railgsa_ros.inverse.multirate import (
+    MultirateFir,
+    antialias_taps,
+    decimation,
+    rate_dtype,
+    rolloff,
+)
 from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
@@ -245,7 +251,8 @@ class InversionPipeline:
             self.delay_samples = self._half
             return PartitionedFir(taps, channels)
         antialias = antialias_taps(cfg.rate_hz, self.decimation, f_top, cfg.fir_tolerance)
-        fir = MultirateFir(taps, channels, self.decimation, antialias)
+        fir = MultirateFir(taps, channels, self.decimation, antialias,
+                           rate_dtype(cfg.fir_tolerance, self._stage is None))
         self.delay_samples = self.decimation * self._half + 2 * fir.half_delay
         return fir
 
