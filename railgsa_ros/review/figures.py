@@ -29,18 +29,33 @@ TRUTH_COLOUR = '#2b8a3e'
 ZOOM_M = 30.0  # half width of a defect close-up, m
 
 
-def _figure(width: float, height: float):
-    """A matplotlib Figure with an Agg canvas (thread-safe, no global state)."""
+def _figure(width: float, height: float, rows: int = 1, cols: int = 1, *, top: float = 0.15,
+            bottom: float = 0.5, left: float = 0.8, right: float = 0.2, row_gap: float = 0.15,
+            col_gap: float = 0.8):
+    """A matplotlib Figure of ``width`` x ``height`` inches with an Agg canvas (thread-safe, no
+    global state) whose subplots (a ``rows`` x ``cols`` grid) get fixed margins and gaps, in
+    inches.
+
+    Why not layout='constrained': it measures every tick label before each draw, and took 40 %
+    of the drawing time (measured on one core: 1.26 s -> 0.79 s for the five review figures,
+    with the PNG compression below). The margins fit the labels each figure draws.
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width, height), layout='constrained')
+    fig = Figure(figsize=(width, height))
     FigureCanvasAgg(fig)
+    axes_w = (width - left - right - (cols - 1) * col_gap) / cols
+    axes_h = (height - top - bottom - (rows - 1) * row_gap) / rows
+    fig.subplots_adjust(left=left / width, right=1 - right / width, bottom=bottom / height,
+                        top=1 - top / height, wspace=col_gap / axes_w, hspace=row_gap / axes_h)
     return fig
 
 
 def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
+    """PNG at DPI. zlib level 1 instead of PIL's default 6: a third less time for 8 % larger
+    files (plots are mostly flat colour)."""
+    fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': 1})
     return path
 
 
@@ -97,7 +112,7 @@ def _band_label(quantiles: tuple[float, float]) -> str:
 def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[Exceedance],
                   quantiles: tuple[float, float]) -> Path:
     """Irregularity over chainage with the band, the limits and the exceedances; speed below."""
-    fig = _figure(11.0, 5.0)
+    fig = _figure(11.0, 5.0, rows=2)
     ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(5, 1))
     x = run.chainage_m
     if run.band is not None:
@@ -127,8 +142,9 @@ def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[
 def plot_closeups(path: Path, run: ReviewRun, limits: Limits, centres: Sequence[float],
                   titles: Sequence[str], quantiles: tuple[float, float]) -> Path:
     """Close-ups of +-ZOOM_M around each centre chainage (m), every sample drawn."""
-    fig = _figure(11.0, 2.6 * -(-len(centres) // 2))
-    axes = np.atleast_1d(fig.subplots(-(-len(centres) // 2), 2, squeeze=False)).ravel()
+    rows = -(-len(centres) // 2)
+    fig = _figure(11.0, 2.6 * rows, rows, 2, top=0.3, row_gap=0.85, col_gap=0.7)
+    axes = np.atleast_1d(fig.subplots(rows, 2, squeeze=False)).ravel()
     x = run.chainage_m
     for ax, centre, title in zip(axes, centres, titles, strict=False):
         sel = (x >= centre - ZOOM_M) & (x <= centre + ZOOM_M)
@@ -150,7 +166,7 @@ def plot_closeups(path: Path, run: ReviewRun, limits: Limits, centres: Sequence[
 def plot_sections(path: Path, sections: Sections, limits: Limits,
                   truth: Sections | None = None) -> Path:
     """SD per section as bars against the EN 13848-5 alert range of each section's class."""
-    fig = _figure(11.0, 3.6)
+    fig = _figure(11.0, 3.6, right=0.35)
     ax = fig.subplots()
     sd_range = limits.sd_at(sections.speed_mps) * MM
     sd = sections.sd_m * MM
@@ -183,7 +199,7 @@ def plot_sensitivity(path: Path, windows: list[Sensitivity]) -> Path:
     qois = list(dict.fromkeys(w.qoi for w in windows))
     names = windows[0].names
     colours = [f'C{j}' for j in range(len(names))]
-    fig = _figure(11.0, 6.2)
+    fig = _figure(11.0, 6.2, 3, len(qois), top=0.7)
     axes = fig.subplots(3, len(qois), sharex=True, squeeze=False)
     for col, qoi in enumerate(qois):
         ws = [w for w in windows if w.qoi == qoi]
@@ -205,14 +221,14 @@ def plot_sensitivity(path: Path, windows: list[Sensitivity]) -> Path:
             ax.grid(alpha=0.3)
         axes[-1, col].set_xlabel('window centre: chainage [m]')
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc='outside upper center', ncol=len(labels), fontsize=9)
+    fig.legend(handles, labels, loc='upper center', ncol=len(labels), fontsize=9)
     return _save(fig, path)
 
 
 def plot_health(path: Path, stamps_ns: np.ndarray, health: InputHealth) -> Path:
     """IMU samples per second with the gaps, the distribution of the jitter, and the rejected
     samples."""
-    fig = _figure(11.0, 5.0)
+    fig = _figure(11.0, 5.0, 2, 2, top=0.1, row_gap=0.8, col_gap=1.2)
     grid = fig.add_gridspec(2, 2)
     ax_t = fig.add_subplot(grid[0, :])
     t = (np.asarray(stamps_ns) - np.min(stamps_ns)) * 1e-9
@@ -251,7 +267,7 @@ def plot_health(path: Path, stamps_ns: np.ndarray, health: InputHealth) -> Path:
 def plot_truth(path: Path, comparison: Comparison, band: str) -> Path:
     """Reconstruction against the band-filtered truth, their difference, and a close-up of the
     largest defect."""
-    fig = _figure(11.0, 7.0)
+    fig = _figure(11.0, 7.0, 3, top=0.1, row_gap=0.6)
     ax_a, ax_e, ax_z = fig.subplots(3, 1, height_ratios=(2, 1, 2))
     x, rec, truth = comparison.x_m, comparison.rec_m * MM, comparison.truth_m * MM
     _signal(ax_a, x, truth, color=TRUTH_COLOUR, alpha=0.7, label=f'truth ({band.upper()})')
