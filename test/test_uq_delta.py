@@ -8,7 +8,7 @@ from scipy import special
 
 from railgsa_ros.uq import Normal, analyze
 from railgsa_ros.uq.conditional import conditional_design, distinct_count, paper_count
-from railgsa_ros.uq.delta import delta_indices
+from railgsa_ros.uq.delta import _smooth, delta_design, delta_from_outputs, delta_indices
 
 ISHIGAMI_DELTA = np.array([0.263, 0.425, 0.210])  # gsa_notes section 2, semi-analytic
 
@@ -84,3 +84,37 @@ def test_conditional_pem5_delta_on_linear_gaussian():
     assert res.n_evaluations == 27
     # three fixed values per input are a coarse quadrature of E[s]: a few hundredths
     np.testing.assert_allclose(res.delta, linear_delta(a, np.ones(3)), atol=0.04)
+
+
+def test_smoothing_pads_each_row_by_what_its_bandwidth_needs():
+    """_smooth pads each row by at least TAIL_BANDWIDTHS bandwidths (1 to 300 bins: every
+    padding step): against the same Gaussian transfer function on a grid padded by 15 bins,
+    where nothing wraps around. Kernels of 2 bins and wider agree to rounding; below, the
+    transfer function cut at the grid's Nyquist frequency (at 1 bin: exp(-pi^2 / 2) = 0.7 %
+    there) leaves a slowly decaying tail that wraps (measured: 2.5e-6 of the peak at 1 bin,
+    2e-7 with the former padding of 1024 bins, which left 1e-3 at 300 bins). Row by row the
+    same floats as in a batch (the deferred window records rely on it)."""
+    rng = np.random.default_rng(3)
+    bins, size = 1024, 16 * 1024
+    diff = rng.standard_normal((2, 40, bins)) * (rng.random((2, 40, bins)) < 0.2)
+    h = np.geomspace(1.0, 300.0, 80).reshape(2, 40)
+    got = _smooth(diff, h)
+    spec = np.fft.rfft(diff, n=size) * np.exp(-2 * (np.pi * np.fft.rfftfreq(size)
+                                                    * h[..., None]) ** 2)
+    ref = np.fft.irfft(spec, n=size)[..., :bins]
+    err = np.abs(got - ref).max(axis=-1) / np.abs(ref).max(axis=-1)
+    assert np.all(err[h >= 2] < 1e-12) and np.all(err < 1e-5)
+    for k in (0, 7, 39):
+        np.testing.assert_array_equal(_smooth(diff[1, k:k + 1], h[1, k:k + 1]), got[1, k:k + 1])
+
+
+def test_delta_design_is_what_delta_indices_evaluates():
+    """delta_from_outputs on the outputs at delta_design's points is delta_indices, bit for bit
+    (the uncertainty windows evaluate their surrogates there through a cached basis)."""
+    def func(xi):
+        return np.stack([xi[:, 0] + 0.3 * xi[:, 1] ** 2, np.sin(xi[:, 2]) * xi[:, 0]], -1)
+
+    design = delta_design(3, 4096, seed=5)
+    y_cond = func(design.cond.reshape(-1, 3)).reshape(*design.cond.shape[:3], -1)
+    np.testing.assert_array_equal(delta_from_outputs(func(design.ref), y_cond),
+                                  delta_indices(func, 3, 4096, seed=5))

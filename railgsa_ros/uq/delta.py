@@ -16,20 +16,32 @@ signs (an input with no influence gets 0 on average, not a positive noise floor)
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import ndimage, stats
 
 from railgsa_ros.uq.germ import from_unit, sobol
 
 BINS = 1024  # grid cells across the joint sample range
 BANDWIDTH_FACTOR = 0.25  # x Silverman's rule, for the sign of f - g only
+TAIL_BANDWIDTHS = 10.0  # zero padding of the smoothing, in kernel bandwidths
 
 
 def _silverman(y: np.ndarray) -> np.ndarray:
-    """Silverman's rule-of-thumb bandwidth along axis -2 of y (..., N, m): shape (..., m)."""
-    q75, q25 = np.percentile(y, [75, 25], axis=-2)
-    spread = np.minimum(np.std(y, axis=-2), (q75 - q25) / 1.349)
+    """Silverman's rule-of-thumb bandwidth along axis -2 of y (..., N, m): shape (..., m).
+
+    The quartiles are np.percentile's (linear), from one sort along a contiguous axis:
+    np.percentile partitions along the strided axis, 3.8 ms against 0.5 ms for (96, 156, 12)
+    (measured on one core).
+    """
+    ys = np.sort(np.moveaxis(y, -2, -1), axis=-1)  # (..., m, N)
+    pos = np.array([0.75, 0.25]) * (ys.shape[-1] - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, ys.shape[-1] - 1)
+    q75, q25 = np.moveaxis(ys[..., lo] + (ys[..., hi] - ys[..., lo]) * (pos - lo), -1, 0)
+    spread = np.minimum(np.std(ys, axis=-1), (q75 - q25) / 1.349)
     return 0.9 * spread * y.shape[-2] ** -0.2
 
 
@@ -49,13 +61,37 @@ def _smooth(diff: np.ndarray, h_bins: np.ndarray) -> np.ndarray:
     scipy.ndimage.gaussian_filter1d takes one sigma per call; the Gaussian's analytic transfer
     function on a zero-padded FFT grid applies a different bandwidth to every row at once.
     Measured: binning + this smoothing of 96 rows of 1562 samples on 1024 points takes 0.05 s,
-    scipy.stats.gaussian_kde row by row 15 s (300x, on 2 loaded cores).
+    scipy.stats.gaussian_kde row by row 15 s (300x, on 2 loaded cores). Each row is padded by
+    the first of bins / 8, bins / 4, bins / 2, bins, 2 bins, ... that holds TAIL_BANDWIDTHS of
+    its kernel bandwidths: what wraps around the circular grid weighs below
+    exp(-TAIL_BANDWIDTHS^2 / 2) of the kernel's peak (below 2 bins, the transfer function's
+    cut at the Nyquist frequency leaves a slower tail: 2.5e-6 of the peak wraps at 1 bin).
+    Typical rows (h of 1 to 11 bins) take transforms of 1152 instead of 2048 points:
+    delta_indices at n_mc 20000 takes 0.065 instead of 0.095 s. The padding depends on the
+    row alone, so a row's result does not depend on the rows smoothed with it.
     """
     bins = diff.shape[-1]
-    spec = np.fft.rfft(diff, n=2 * bins, axis=-1)
-    freq = np.fft.rfftfreq(2 * bins)
-    spec *= np.exp(-2.0 * (np.pi * freq * h_bins[..., None]) ** 2)
-    return np.fft.irfft(spec, n=2 * bins, axis=-1)[..., :bins]
+    rows, h = diff.reshape(-1, bins), np.ravel(h_bins)
+    step = max(bins // 8, 1)
+    doublings = np.ceil(np.log2(np.maximum(TAIL_BANDWIDTHS * h / step, 1.0))).astype(np.int64)
+    groups = np.unique(doublings)
+    if groups.size == 1:  # the usual case, without copies
+        return _gaussian_fft(rows, h, step << int(groups[0])).reshape(diff.shape)
+    out = np.empty(rows.shape)
+    for g in groups:
+        pick = doublings == g
+        out[pick] = _gaussian_fft(rows[pick], h[pick], step << int(g))
+    return out.reshape(diff.shape)
+
+
+def _gaussian_fft(rows: np.ndarray, h: np.ndarray, pad: int) -> np.ndarray:
+    """rows (R, bins) convolved with Gaussians of standard deviation h (R,) bins, by FFT on a
+    grid zero-padded by ``pad`` bins (at least, rounded up to a fast transform length)."""
+    bins = rows.shape[-1]
+    size = sp_fft.next_fast_len(bins + pad, real=True)
+    spec = sp_fft.rfft(rows, n=size, axis=-1)
+    spec *= np.exp(-2.0 * (np.pi * sp_fft.rfftfreq(size) * h[:, None]) ** 2)
+    return sp_fft.irfft(spec, n=size, axis=-1)[:, :bins]
 
 
 def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
@@ -101,25 +137,49 @@ def paired_sobol(n: int, size: int, seed: int | None, germ: str) -> np.ndarray:
     return np.stack([a, b], axis=1).reshape(2 * size, n)
 
 
+@dataclass(frozen=True)
+class DeltaDesign:
+    """Germ points of the double-loop estimate of :func:`delta_indices`: ``ref`` (N, n)
+    reference samples, ``cond`` (n, n_outer, n_inner, n) with input i fixed at stratum k in
+    ``cond[i, k]``."""
+
+    ref: np.ndarray
+    cond: np.ndarray
+
+
+def delta_design(n: int, n_mc: int = 100_000, n_outer: int = 32, seed: int | None = 0,
+                 germ: str = 'hermite') -> DeltaDesign:
+    """The germ points :func:`delta_indices` evaluates (the same ones for the same arguments
+    unless ``seed`` is None): n_mc reference samples; for each input, n_outer fixed values at
+    the midpoints of equal-probability strata of xi_i times n_mc // n_outer inner samples of
+    the others (common random numbers across strata)."""
+    ref = paired_sobol(n, n_mc // 2, seed, germ)
+    inner_seed = None if seed is None else seed + 1
+    inner = paired_sobol(n, max(n_mc // (2 * n_outer), 8), inner_seed, germ)
+    nodes = from_unit((np.arange(n_outer) + 0.5) / n_outer, germ)
+    cond = np.broadcast_to(inner, (n, n_outer, *inner.shape)).copy()
+    cond[np.arange(n), :, :, np.arange(n)] = nodes[:, None]
+    return DeltaDesign(ref, cond)
+
+
+def delta_from_outputs(y_ref: np.ndarray, y_cond: np.ndarray) -> np.ndarray:
+    """delta (m, n) from outputs at the points of a :class:`DeltaDesign`: y_ref (N, m) at
+    ``ref``, y_cond (n, n_outer, n_inner, m) at ``cond``."""
+    n, n_outer, n_inner = y_cond.shape[:3]
+    dist = l1_distances(y_ref, y_cond.reshape(n * n_outer, n_inner, -1)).reshape(n, n_outer, -1)
+    return np.clip(0.5 * dist.mean(axis=1).T, 0.0, 1.0)
+
+
 def delta_indices(func: Callable[[np.ndarray], np.ndarray], n: int, n_mc: int = 100_000,
                   n_outer: int = 32, seed: int | None = 0, germ: str = 'hermite') -> np.ndarray:
     """delta_i of a function of germ inputs (independent), func: xi (N, n) -> (N, m); (m, n).
 
-    Double loop on a cheap function (a surrogate): n_mc reference samples; for each input,
-    n_outer fixed values at the midpoints of equal-probability strata of xi_i times
-    n_mc // n_outer inner samples of the others (common random numbers across strata).
+    Double loop on a cheap function (a surrogate) at the points of :func:`delta_design`.
     """
-    ref = paired_sobol(n, n_mc // 2, seed, germ)
-    y_ref = np.atleast_2d(func(ref).T).T
-    inner_seed = None if seed is None else seed + 1
-    inner = paired_sobol(n, max(n_mc // (2 * n_outer), 8), inner_seed, germ)
-    n_inner = inner.shape[0]
-    nodes = from_unit((np.arange(n_outer) + 0.5) / n_outer, germ)
-    xi = np.broadcast_to(inner, (n, n_outer, n_inner, n)).copy()
-    xi[np.arange(n), :, :, np.arange(n)] = nodes[:, None]
-    y_cond = np.atleast_2d(func(xi.reshape(-1, n)).T).T.reshape(n * n_outer, n_inner, -1)
-    dist = l1_distances(y_ref, y_cond).reshape(n, n_outer, -1)
-    return np.clip(0.5 * dist.mean(axis=1).T, 0.0, 1.0)
+    design = delta_design(n, n_mc, n_outer, seed, germ)
+    y_ref = np.atleast_2d(func(design.ref).T).T
+    y_cond = np.atleast_2d(func(design.cond.reshape(-1, n)).T).T
+    return delta_from_outputs(y_ref, y_cond.reshape(*design.cond.shape[:3], -1))
 
 
 def delta_given_data(x: np.ndarray, y: np.ndarray, bins: int | None = None,
