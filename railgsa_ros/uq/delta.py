@@ -27,6 +27,8 @@ from railgsa_ros.uq.germ import from_unit, sobol
 BINS = 1024  # grid cells across the joint sample range
 BANDWIDTH_FACTOR = 0.25  # x Silverman's rule, for the sign of f - g only
 TAIL_BANDWIDTHS = 10.0  # zero padding of the smoothing, in kernel bandwidths
+CHUNK_ROWS = 128  # (conditional sample, output) rows per pass of l1_distances: 1.2 MB arrays
+HALVES = (slice(0, None, 2), slice(1, None, 2))  # the cross-fitting halves of a sample's rows
 
 
 def _silverman(y: np.ndarray) -> np.ndarray:
@@ -101,7 +103,11 @@ def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
 
     Rows 0::2 and 1::2 of each sample are the two cross-fitting halves and must be independent
     of each other (e.g. :func:`paired_sobol` or random rows): the even and odd points of one
-    Sobol' sequence are not (measured: L1 = -0.29 for two shifted normals).
+    Sobol' sequence are not (measured: L1 = -0.29 for two shifted normals). The conditional
+    samples go through in groups of about CHUNK_ROWS (sample, output) rows, so that the
+    binned densities and their transforms stay in the cache (each row's result is its own:
+    43 instead of 56 ms per delta_indices call at n_mc 20000 and m = 12, measured on one
+    core; 512 rows take 72 ms).
     """
     y_ref, y_cond = np.asarray(y_ref, dtype=float), np.asarray(y_cond, dtype=float)
     bins = bins or BINS
@@ -109,21 +115,34 @@ def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
     lo = np.minimum(y_ref.min(axis=0), y_cond.min(axis=(0, 1)))
     hi = np.maximum(y_ref.max(axis=0), y_cond.max(axis=(0, 1)))
     width = np.where(hi > lo, (hi - lo) / bins, 1.0)
-
-    def index(y: np.ndarray) -> np.ndarray:
-        return np.clip(((y - lo) / width).astype(np.int64), 0, bins - 1)
-
-    halves = []
-    for part in (slice(0, None, 2), slice(1, None, 2)):
-        p = _probabilities(index(y_ref[part]), bins)  # (m, bins)
-        yc = y_cond[:, part]
-        q = _probabilities(index(yc), bins)  # (K, m, bins)
-        h_bins = np.maximum(bandwidth_factor * _silverman(yc) / width, 1.0)  # (K, m)
-        halves.append((p - q, h_bins))
-    (d_a, h_a), (d_b, h_b) = halves
-    sign_a, sign_b = np.sign(_smooth(d_a, h_a)), np.sign(_smooth(d_b, h_b))
-    dist = 0.5 * (np.sum(sign_a * d_b, axis=-1) + np.sum(sign_b * d_a, axis=-1))
+    grid = (lo, width, bins)
+    p = [_probabilities(_bin_index(y_ref[half], grid), bins) for half in HALVES]  # (m, bins)
+    step = max(1, CHUNK_ROWS // y_cond.shape[-1])
+    dist = np.empty((y_cond.shape[0], y_cond.shape[-1]))
+    for k in range(0, y_cond.shape[0], step):
+        dist[k:k + step] = _cross_fitted(p, y_cond[k:k + step], grid, bandwidth_factor)
     return np.where(hi > lo, dist, 0.0)
+
+
+def _bin_index(y: np.ndarray, grid: tuple[np.ndarray, np.ndarray, int]) -> np.ndarray:
+    """Bin of every value of y (..., m) on the grid (lower edge (m,), bin width (m,), bins)."""
+    lo, width, bins = grid
+    return np.clip(((y - lo) / width).astype(np.int64), 0, bins - 1)
+
+
+def _cross_fitted(p: list[np.ndarray], y_cond: np.ndarray,
+                  grid: tuple[np.ndarray, np.ndarray, int], bandwidth_factor: float
+                  ) -> np.ndarray:
+    """L1 distances (K, m) between the reference halves' bin probabilities p (2 x (m, bins))
+    and conditional samples y_cond (K, Nc, m): each half's sign against the other's masses."""
+    diffs, widths = [], []
+    for p_half, half in zip(p, HALVES, strict=True):
+        yc = y_cond[:, half]
+        diffs.append(p_half - _probabilities(_bin_index(yc, grid), grid[2]))  # (K, m, bins)
+        widths.append(np.maximum(bandwidth_factor * _silverman(yc) / grid[1], 1.0))  # (K, m)
+    (d_a, d_b), (h_a, h_b) = diffs, widths
+    sign_a, sign_b = np.sign(_smooth(d_a, h_a)), np.sign(_smooth(d_b, h_b))
+    return 0.5 * (np.sum(sign_a * d_b, axis=-1) + np.sum(sign_b * d_a, axis=-1))
 
 
 def paired_sobol(n: int, size: int, seed: int | None, germ: str) -> np.ndarray:
