@@ -2,8 +2,8 @@
 
 The bank outputs there (one per rule point) project onto the same PCE as the uncertainty node's
 band (``Design.projector``); the surrogate is then sampled on ``N_SAMPLES`` scrambled Sobol' germ
-points for the histogram and its kernel density (``uq.plots.plot_histogram``), and the Sobol'
-indices come from the coefficients.
+points for the histogram and its kernel density (``figures.plot_distribution``), and the
+Sobol' indices come from the coefficients.
 """
 
 from __future__ import annotations
@@ -11,13 +11,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from railgsa_ros.review.figures import plot_distribution
 from railgsa_ros.review.stream import Worst
 from railgsa_ros.uncertainty import UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design
 from railgsa_ros.uq.analyze import Result
 from railgsa_ros.uq.germ import sobol
 from railgsa_ros.uq.pce import PCE
-from railgsa_ros.uq.plots import plot_histogram
 
 N_SAMPLES = 100_000  # surrogate samples, as the paper's 10^5
 MM = 1e3
@@ -45,5 +47,6 @@ def worst_surrogate(design: Design, worst: Worst, config: UncertaintyConfig) -> 
 
 def plot_worst(path: Path, surrogate: WorstSurrogate) -> Path:
     """Histogram of the surrogate samples with their kernel density (paper Fig. 12 style)."""
-    return plot_histogram(surrogate.result, path, f'irregularity at {surrogate.chainage_m:.1f} m '
-                                                  f'(largest |mean|) [mm]')
+    samples = surrogate.result.samples
+    return plot_distribution(path, np.reshape(samples, (len(samples), -1))[:, 0],
+                             f'irregularity at {surrogate.chainage_m:.1f} m (largest |mean|) [mm]')
