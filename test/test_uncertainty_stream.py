@@ -232,8 +232,8 @@ def test_order_statistics_are_those_of_a_full_sort(size, ranks):
     values[4, ::3] = -np.inf
     values[5] = np.sort(values[5])[::-1]  # reversed
     ranks = np.array([r % size for r in ranks])
-    np.testing.assert_array_equal(order_statistics(values, ranks),
-                                  np.sort(values, axis=1)[:, ranks])
+    expected = np.sort(values, axis=1)[:, ranks]
+    np.testing.assert_array_equal(order_statistics(values, ranks), expected)
 
 
 def test_deferred_windows_give_the_streamed_records(run):

@@ -95,7 +95,8 @@ def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarra
 
 def order_statistics(values: np.ndarray, ranks: np.ndarray) -> np.ndarray:
     """``np.sort(values, axis=1)[:, ranks]`` for values (K, S) and 0-based ranks (R,): (K, R),
-    the same floats (NaN sorts last, as in ``np.sort``).
+    the same floats (NaN sorts last, as in ``np.sort``). ``values`` (C-contiguous) is scratch:
+    its rows are sorted in place, piecewise (saves a copy: 10 % of the band's time).
 
     Why not one sort per row: numpy's SIMD sort (x86-simd-sort) sorts up to SORT_WIDTH float64
     with a sorting network, so 4 pieces of 256 sort about twice as fast as one row of 1024.
@@ -113,9 +114,12 @@ def order_statistics(values: np.ndarray, ranks: np.ndarray) -> np.ndarray:
     n_low = int(ranks[ranks < size // 2].max(initial=-1)) + 1  # smallest values needed
     n_high = size - int(ranks[ranks >= size // 2].min(initial=size))  # largest values needed
     if pieces == 1 or size % pieces or max(n_low, n_high) * pieces > SORT_WIDTH:
-        return np.sort(values, axis=1)[:, ranks]
+        values.sort(axis=1)
+        return values[:, ranks]
     width = size // pieces
-    parts = np.sort(values.reshape(count * pieces, width), axis=1).reshape(count, pieces, width)
+    parts = values.reshape(count * pieces, width)  # a view: values is contiguous
+    parts.sort(axis=1)
+    parts = parts.reshape(count, pieces, width)
     lowest = np.sort(parts[:, :, :n_low].reshape(count, -1), axis=1)  # (K, pieces n_low)
     highest = np.sort(parts[:, :, width - n_high:].reshape(count, -1), axis=1)
     low = ranks < size // 2
