@@ -88,14 +88,16 @@ def test_frame_mask_helper():
 
 def test_clean_chunk_fast_path_matches_the_full_classification():
     """Chunks that are clean, or clean but for one edge (a stamp equal to the last one, a step
-    at or just past the gap limit, a backward jump, NaN, saturation, an extreme stamp), give the
-    same samples, state and counters with the fast path as with the full classification (forced
-    by a stuck detector that never fires)."""
+    at or just past the gap limit, a backward jump, NaN, saturation, an extreme stamp, a wrong
+    frame; with and without frame ids), give the same samples, state and counters with the
+    fast path as with the full classification (forced by a stuck detector that never fires),
+    and clean chunks take the fast path."""
     rng = np.random.default_rng(3)
     chunks = []
     start = 0
-    for edge in range(9):
+    for edge in range(10):
         t = stamps(50, start)
+        ids = None if edge % 3 == 0 else np.full(50, 'imu_link')
         a = 9.8 + 0.01 * rng.standard_normal(50)
         speed = 20.0 if edge % 2 else np.full(50, 20.0)
         if edge == 1:
@@ -112,14 +114,24 @@ def test_clean_chunk_fast_path_matches_the_full_classification():
             a[9] = -19.55  # beyond the saturation limit of 19.5
         elif edge == 7:
             t[-1] = np.iinfo(np.int64).max  # a step wrapping around in int64
-        chunks.append((t, a, speed))
+        elif edge == 8:
+            ids[5] = 'base_link'
+        chunks.append((t, a, speed, ids))
         start = int(t[-1] // MS) + 1 if edge != 7 else int(t[-2] // MS) + 2
-    fast = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1)
+    fast = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1,
+                          frame_id='imu_link')
     full = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1,
-                          stuck_s=1e6)
-    for t, a, speed in chunks:
-        got, want = fast.process(t, a, speed), full.process(t, a, speed)
+                          frame_id='imu_link', stuck_s=1e6)
+    slow = []
+    classify = fast._classify
+    fast._classify = lambda *args: slow.append(1) or classify(*args)
+    took_fast = []
+    for t, a, speed, ids in chunks:
+        calls = len(slow)
+        got, want = fast.process(t, a, speed, ids), full.process(t, a, speed, ids)
+        took_fast.append(len(slow) == calls)
         for field in ('stamps_ns', 'accel', 'speed', 'synthetic', 'reset_before'):
             assert np.array_equal(getattr(got, field), getattr(want, field)), field
         assert fast._last == full._last and fast._newest == full._newest
-    assert fast.counters == full.counters
+    assert fast.counters == full.counters and fast.counters['wrong_frame'] == 1
+    assert np.flatnonzero(took_fast).tolist() == [0, 2, 9]  # clean, with ids (2) or without

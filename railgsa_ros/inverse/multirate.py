@@ -40,6 +40,7 @@ PASS_FACTOR = 1.5  # anti-alias passband edge / the band's upper edge at max_spe
 TRANSITION = 1.0  # anti-alias transition width / passband edge: fs / R >= (2 + this) f_pass
 FLOAT32_TOLERANCE = 1e-5  # design tolerances from this up: rate changes in float32 (30x margin)
 MAX_SWITCH = 4096  # input samples: longest period between band redesigns (speed tracking)
+SMALL_COUNT = 16  # low samples up to which the interpolation sums all products at once
 
 
 def decimation(rate_hz: float, f_top_hz: float) -> int:
@@ -141,7 +142,13 @@ class MultirateFir:
     def _interpolate(self, w: np.ndarray, count: int) -> np.ndarray:
         """Output phases (C, count, R) of low samples: [c, i, p] = sum_j w[c, i + j] phases[p, j],
         summed over j in order as whole-array multiply-adds along the low samples (faster than
-        a window product of k-long dots, and the same order whatever the chunk)."""
+        a window product of k-long dots, and the same order whatever the chunk). A few low
+        samples (a live push) take all products at once and a running sum over j instead: the
+        same products added in the same order, in 3 numpy calls instead of 2 k."""
+        if count <= SMALL_COUNT:
+            win = sliding_window_view(w, self._phases.shape[1], axis=-1)[:, :count]
+            terms = win[:, :, None, :] * self._phases  # (C, count, R, k)
+            return np.cumsum(terms, axis=-1)[..., -1]
         phases = self._phases[None, :, :, None]  # (1, R, k, 1)
         z = phases[:, :, 0] * w[:, None, :count]  # (C, R, count)
         term = np.empty_like(z)

@@ -350,9 +350,11 @@ class InversionPipeline:
         """Design speeds (m/s) due at switch boundaries n (segment sample indices still in the
         delay line), NaN where the current design stays: Kalman gains for the newest sample n,
         band for the output sample n - D; both held at min_design_speed_mps."""
+        keep = np.full(n.shape, np.nan)
+        if n.size == 0:  # the usual live push: no switch boundary inside
+            return keep, keep
         cfg = self.config
         speed = self._meta.speed
-        keep = np.full(n.shape, np.nan)
 
         def due(v: np.ndarray, current: float) -> np.ndarray:
             return np.where(np.abs(v - current) > cfg.speed_tolerance * current, v, np.nan)

@@ -107,12 +107,15 @@ class InputSanitizer:
     def _all_clean(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray,
                    frame_ids: np.ndarray | None) -> bool:
         """True when the full classification would accept every sample of the chunk and find
-        no gap and no time reset: frames and stuck detection off, every |accel| below the
-        saturation limit (so finite: NaN fails every comparison), speed finite, stamps strictly
-        increasing from the newest accepted one with steps up to the gap limit, and the first
-        stamp no backward jump. A handful of reductions instead of the per-sample masks."""
-        if stamps.size == 0 or frame_mask(frame_ids, self.frame_id) is not None or \
-                np.isfinite(self.stuck_ns):
+        no gap and no time reset: every frame the expected one (or unchecked), stuck detection
+        off, every |accel| below the saturation limit (so finite: NaN fails every comparison),
+        speed finite, stamps strictly increasing from the newest accepted one with steps up to
+        the gap limit, and the first stamp no backward jump. A handful of reductions instead of
+        the per-sample masks."""
+        if stamps.size == 0 or np.isfinite(self.stuck_ns):
+            return False
+        frames = frame_mask(frame_ids, self.frame_id)
+        if frames is not None and not frames.all():
             return False
         speed = speed[:1] if speed.strides == (0,) else speed  # one value broadcast
         if not (accel.max() < self.limit and accel.min() > -self.limit
