@@ -1,6 +1,7 @@
 """Input sanitiser: every reason classified and counted, gaps reset or bridged, never raises."""
 
 import numpy as np
+import pytest
 
 from railgsa_ros.inverse.sanitize import InputSanitizer, frame_mask
 
@@ -86,16 +87,18 @@ def test_frame_mask_helper():
     assert frame_mask(np.array(['imu_link', 'x']), 'imu_link').tolist() == [True, False]
 
 
-def test_clean_chunk_fast_path_matches_the_full_classification():
+@pytest.mark.parametrize('stuck_s', [0.0, 0.01])
+def test_clean_chunk_fast_path_matches_the_full_classification(stuck_s):
     """Chunks that are clean, or clean but for one edge (a stamp equal to the last one, a step
     at or just past the gap limit, a backward jump, NaN, saturation, an extreme stamp, a wrong
-    frame; with and without frame ids), give the same samples, state and counters with the
-    fast path as with the full classification (forced by a stuck detector that never fires),
-    and clean chunks take the fast path."""
+    frame, a value run continued from the last chunk, a stuck stretch; with and without frame
+    ids), give the same samples, state and counters with the fast path as with the full
+    classification, and clean chunks take the fast path (with stuck detection on: those
+    without a repeated value)."""
     rng = np.random.default_rng(3)
     chunks = []
     start = 0
-    for edge in range(10):
+    for edge in range(12):
         t = stamps(50, start)
         ids = None if edge % 3 == 0 else np.full(50, 'imu_link')
         a = 9.8 + 0.01 * rng.standard_normal(50)
@@ -116,12 +119,16 @@ def test_clean_chunk_fast_path_matches_the_full_classification():
             t[-1] = np.iinfo(np.int64).max  # a step wrapping around in int64
         elif edge == 8:
             ids[5] = 'base_link'
+        elif edge == 10:
+            a[:3] = chunks[-1][1][-1]  # the last chunk's final value goes on for 3 samples
+        elif edge == 11:
+            a[:] = 9.8  # 50 ms of one value: stuck after 10 ms when detection is on
         chunks.append((t, a, speed, ids))
         start = int(t[-1] // MS) + 1 if edge != 7 else int(t[-2] // MS) + 2
-    fast = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1,
-                          frame_id='imu_link')
-    full = InputSanitizer(1000.0, saturation_mps2=19.6, saturation_margin_mps2=0.1,
-                          frame_id='imu_link', stuck_s=1e6)
+    settings = {'saturation_mps2': 19.6, 'saturation_margin_mps2': 0.1,
+                'frame_id': 'imu_link', 'stuck_s': stuck_s}
+    fast, full = InputSanitizer(1000.0, **settings), InputSanitizer(1000.0, **settings)
+    full._all_clean = lambda *args: False
     slow = []
     classify = fast._classify
     fast._classify = lambda *args: slow.append(1) or classify(*args)
@@ -132,6 +139,8 @@ def test_clean_chunk_fast_path_matches_the_full_classification():
         took_fast.append(len(slow) == calls)
         for field in ('stamps_ns', 'accel', 'speed', 'synthetic', 'reset_before'):
             assert np.array_equal(getattr(got, field), getattr(want, field)), field
-        assert fast._last == full._last and fast._newest == full._newest
+        assert (fast._last, fast._newest, fast._run) == (full._last, full._newest, full._run)
     assert fast.counters == full.counters and fast.counters['wrong_frame'] == 1
-    assert np.flatnonzero(took_fast).tolist() == [0, 2, 9]  # clean, with ids (2) or without
+    assert fast.counters['stuck'] == (39 if stuck_s else 0)  # 11-49 ms into the run
+    clean = [0, 2, 9] if stuck_s else [0, 2, 9, 10, 11]  # with ids (2, 10, 11) or without
+    assert np.flatnonzero(took_fast).tolist() == clean

@@ -107,15 +107,19 @@ class InputSanitizer:
     def _all_clean(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray,
                    frame_ids: np.ndarray | None) -> bool:
         """True when the full classification would accept every sample of the chunk and find
-        no gap and no time reset: every frame the expected one (or unchecked), stuck detection
-        off, every |accel| below the saturation limit (so finite: NaN fails every comparison),
+        no gap and no time reset: every frame the expected one (or unchecked), no value
+        repeated (when stuck detection is on: every sample then starts a run, none is stuck),
+        every |accel| below the saturation limit (so finite: NaN fails every comparison),
         speed finite, stamps strictly increasing from the newest accepted one with steps up to
         the gap limit, and the first stamp no backward jump. A handful of reductions instead of
         the per-sample masks."""
-        if stamps.size == 0 or np.isfinite(self.stuck_ns):
+        if stamps.size == 0:
             return False
         frames = frame_mask(frame_ids, self.frame_id)
         if frames is not None and not frames.all():
+            return False
+        if np.isfinite(self.stuck_ns) and (accel[0] == self._run[0]
+                                           or np.any(accel[1:] == accel[:-1])):
             return False
         speed = speed[:1] if speed.strides == (0,) else speed  # one value broadcast
         if not (accel.max() < self.limit and accel.min() > -self.limit
@@ -143,6 +147,8 @@ class InputSanitizer:
         n = stamps.size
         self._newest = max(self._newest, int(stamps[-1]))
         self._last = (int(stamps[-1]), float(accel[-1]), float(speed[-1]))
+        if np.isfinite(self.stuck_ns):  # the last sample started the current run
+            self._run = (float(accel[-1]), int(stamps[-1]))
         self.counters.update({**dict.fromkeys(REASONS, 0), 'accepted': n, 'gap': 0})
         return Clean(stamps, accel, speed, np.zeros(n, bool), np.zeros(n, bool))
 
