@@ -2,7 +2,7 @@
 
 The bank outputs there (one per rule point) project onto the same PCE as the uncertainty node's
 band (``Design.projector``); the surrogate is then sampled on ``N_SAMPLES`` scrambled Sobol' germ
-points for the histogram and its kernel density (``figures.plot_distribution``), and the
+points for the histogram and its kernel density (``uq.plots.draw_histogram``), and the
 Sobol' indices come from the coefficients.
 """
 
