@@ -18,6 +18,7 @@ from scipy.integrate import cumulative_trapezoid
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.imu import FRAME_ID, ImuSpec, accel_covariance, imu_spec, measure
 from railgsa_ros.simulate import simulate
+from railgsa_ros.speed_profile import SpeedProfile
 from railgsa_ros.track import DEFAULT_WAVELENGTHS, apply_defects, make_profile, parse_defects
 from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
@@ -53,8 +54,14 @@ class Run:
     frame_id: str = FRAME_ID
 
 
-def check_speed(speed_mps: float | np.ndarray) -> np.ndarray:
-    """Validated speed (m/s): a 0-d array, or a 1-d profile of at least two samples."""
+Speed = float | np.ndarray | SpeedProfile
+
+
+def check_speed(speed_mps: Speed) -> np.ndarray:
+    """Validated speed (m/s): a 0-d array, or a 1-d profile of at least two samples (a
+    SpeedProfile is valid by construction: returned as its maximum)."""
+    if isinstance(speed_mps, SpeedProfile):
+        return np.asarray(speed_mps.max_speed_mps)
     speed = np.asarray(speed_mps, dtype=float)
     if speed.ndim > 1 or (speed.ndim == 1 and speed.size < 2):
         raise ConfigError('speed: expected a number or at least two samples (m/s)')
@@ -63,8 +70,11 @@ def check_speed(speed_mps: float | np.ndarray) -> np.ndarray:
     return speed
 
 
-def speed_at(t_s: np.ndarray, speed_mps: float | np.ndarray, duration_s: float) -> np.ndarray:
-    """Speed (m/s) at times t_s: a constant, or samples spread evenly over [0, duration_s]."""
+def speed_at(t_s: np.ndarray, speed_mps: Speed, duration_s: float) -> np.ndarray:
+    """Speed (m/s) at times t_s: a constant, samples spread evenly over [0, duration_s], or a
+    SpeedProfile (its last speed held after its end)."""
+    if isinstance(speed_mps, SpeedProfile):
+        return speed_mps(t_s)
     speed = check_speed(speed_mps)
     if speed.ndim == 0:
         return np.full_like(t_s, float(speed))
@@ -88,7 +98,7 @@ def _vehicle(vehicle: VehicleParams | np.ndarray | str | Path | None
     return vehicle
 
 
-def run_scenario(profile_spec: str, speed_mps: float | np.ndarray, duration_s: float,
+def run_scenario(profile_spec: str, speed_mps: Speed, duration_s: float,
                  rate_hz: float | None, sensor: str | ImuSpec, seed: int | None = 0,
                  defects: str | list | None = None,
                  vehicle: VehicleParams | np.ndarray | str | Path | None = None, *,
@@ -97,7 +107,8 @@ def run_scenario(profile_spec: str, speed_mps: float | np.ndarray, duration_s: f
     """Simulate one run; see the module docstring.
 
     profile_spec: german-low|german-high|fra-N|paper|file:CSV (track.make_profile); speed_mps: a
-    constant or a speed profile in time (m/s); duration_s (s); rate_hz: IMU output rate (None:
+    constant, samples spread evenly over the duration or a ``speed_profile.SpeedProfile``
+    (m/s); duration_s (s); rate_hz: IMU output rate (None:
     the preset's); sensor: preset name or ImuSpec; seed drives profile and sensor (independent
     streams); defects: spec string or list (track.parse_defects); vehicle: VehicleParams, theta
     (5,), a vehicle YAML path or None (Table 1); start_ns: stamp of the first sample (ns;

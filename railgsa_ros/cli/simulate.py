@@ -21,10 +21,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--profile', default='german-low', metavar='SPEC',
                    help='german-low | german-high | fra-N (N = 1..6) | paper | file:CSV '
                         '(default german-low)')
-    p.add_argument('--speed', type=float, default=20.0, metavar='MPS',
-                   help='vehicle speed in m/s (default 20)')
-    p.add_argument('--duration', type=float, default=20.0, metavar='S',
-                   help='duration in s (default 20)')
+    p.add_argument('--speed', type=float, default=None, metavar='MPS',
+                   help='constant vehicle speed in m/s (default 20)')
+    p.add_argument('--speed-profile', default=None, metavar='SPEC',
+                   help='speed profile instead of --speed: segments such as '
+                        '"accel:0-30:60s,cruise:30:120s:ripple=0.5,brake:30-0:40s,stop:10s" '
+                        'or a preset (station, stop-and-go); see docs/simulation.md')
+    p.add_argument('--duration', type=float, default=None, metavar='S',
+                   help='duration in s (default 20, or the speed profile\'s duration)')
     p.add_argument('--rate', type=float, default=None, metavar='HZ',
                    help='IMU output rate in Hz (default: the sensor preset rate)')
     p.add_argument('--sensor', default='adxl355', metavar='PRESET',
@@ -60,25 +64,38 @@ def check_positive(**values: float | None) -> None:
                               f'got {value:g}')
 
 
-def simulate_bag(out: str | Path, profile: str = 'german-low', speed: float = 20.0,
-                 duration: float = 20.0, rate: float | None = None, sensor: str = 'adxl355',
+def simulate_bag(out: str | Path, profile: str = 'german-low', speed: float | None = None,
+                 duration: float | None = None, rate: float | None = None,
+                 sensor: str = 'adxl355',
                  seed: int = 0, defects: str | None = None, vehicle: str | None = None,
                  storage: str = 'mcap', compression: str | None = None,
                  odom_rate: float = 50.0, start_time: float = DEFAULT_START_S,
-                 overwrite: bool = False) -> tuple[Path, Any]:
-    """Simulate and write the bag; returns (bag path, Run). Units: m/s, s, Hz."""
+                 overwrite: bool = False, speed_profile: str | None = None
+                 ) -> tuple[Path, Any]:
+    """Simulate and write the bag; returns (bag path, Run). Units: m/s, s, Hz.
+
+    ``speed`` (default 20 m/s) and ``speed_profile`` (a spec or preset) exclude each other; the
+    duration defaults to 20 s or to the profile's duration (its last speed is held beyond).
+    """
     from railgsa_ros.bag import write_run
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.scenario import run_scenario
+    from railgsa_ros.speed_profile import parse_speed_profile
 
     check_positive(speed=speed, duration=duration, rate=rate, odom_rate=odom_rate)
+    if speed is not None and speed_profile is not None:
+        raise ConfigError('--speed and --speed-profile exclude each other: give one')
+    velocity = parse_speed_profile(speed_profile) if speed_profile is not None else \
+        (20.0 if speed is None else speed)
+    if duration is None:
+        duration = velocity.duration_s if speed_profile is not None else 20.0
     if not 0 <= start_time < 2**31:
         raise ConfigError(f'--start-time: must be in [0, 2^31) s, got {start_time:g}')
     if compression is None:
         compression = 'zstd' if storage == 'mcap' else 'none'
     if Path(out).exists() and not overwrite:
         raise ConfigError(f'{out}: already exists (choose another output path or --overwrite)')
-    result = run_scenario(profile, speed, duration, rate, sensor, seed, defects=defects,
+    result = run_scenario(profile, velocity, duration, rate, sensor, seed, defects=defects,
                           vehicle=vehicle, start_ns=round(start_time * 1e9))
     path = write_run(out, result, storage, None if compression == 'none' else compression,
                      odom_rate_hz=odom_rate, overwrite=overwrite)
@@ -126,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
     """Simulate, write the bag, print its summary."""
     path, _ = simulate_bag(args.out, args.profile, args.speed, args.duration, args.rate,
                            args.sensor, args.seed, args.defects, args.vehicle, args.storage,
-                           args.compression, args.odom_rate, args.start_time, args.overwrite)
+                           args.compression, args.odom_rate, args.start_time, args.overwrite,
+                           args.speed_profile)
     print(format_summary(path))
     return 0
