@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
+from difflib import get_close_matches
 import math
 from pathlib import Path
 from typing import Any
@@ -46,15 +47,82 @@ def key_list(keys: Iterable[Any]) -> str:
                             for k in keys))
 
 
-def ros_parameters(doc: Any, node_name: str) -> dict[str, Any]:
-    """Return ``doc[node_name]['ros__parameters']`` (or ``/**``), the ROS params-file layout."""
+#: Parameters every ROS 2 node declares itself; a params file may set them for any node.
+ROS_BUILTIN_PARAMETERS = frozenset({'use_sim_time'})
+
+
+def ros_parameters(doc: Any, node_name: str, known: Collection[str] | None = None,
+                   source: str = 'parameters', *, refused: Mapping[str, str] | None = None,
+                   shared_known: Collection[str] | None = None, required: bool = True
+                   ) -> dict[str, Any]:
+    """The parameters a ROS params file gives node ``node_name``; strict, one-line errors.
+
+    Sections that apply (ROS semantics, merged in file order): ``node_name``, ``/node_name``,
+    ``/<namespace>/node_name``, ``/**/node_name`` and ``/**``; other sections configure other
+    nodes and are skipped.
+    Each section must be ``{ros__parameters: {...}}``. ConfigError naming ``source`` when the
+    file is not such a mapping, when no section applies (``required``; else ``{}``), for a key
+    in ``refused`` (its message says what to do instead) and, when ``known`` is given, for a key
+    outside ``known`` (with the closest known name). Keys of ``/**`` (a file shared by several
+    nodes) are checked against ``shared_known`` instead when given (every node's names: a key
+    for another node is skipped, a typo is an error). ``use_sim_time`` is accepted and dropped.
+    """
+    if doc is None:
+        doc = {}
     if not isinstance(doc, dict):
-        return {}
-    for key in (node_name, f'/{node_name}', '/**'):
-        section = doc.get(key)
-        if isinstance(section, dict) and isinstance(section.get('ros__parameters'), dict):
-            return section['ros__parameters']
-    return {}
+        raise ConfigError(f'{source}: expected a ROS params file ({node_name}: ros__parameters: '
+                          '...)')
+    params: dict[str, Any] = {}
+    shared: set[str] = set()  # names set only by /** sections
+    found = False
+    for key, section in doc.items():
+        if not section_applies(key, node_name):
+            continue
+        if not isinstance(section, dict) or set(section) != {'ros__parameters'} or \
+                not isinstance(section['ros__parameters'], (dict, type(None))):
+            raise ConfigError(f'{source}: section {key}: expected only "ros__parameters:" with '
+                              'a mapping of parameters')
+        found = True
+        values = _names(section['ros__parameters'] or {}, source, key)
+        params.update(values)
+        shared = shared | set(values) if key == '/**' else shared - set(values)
+    if not found:
+        if not required:
+            return {}
+        present = f' (sections: {key_list(doc)})' if doc else ' (the file is empty)'
+        raise ConfigError(f'{source}: no section for node {node_name} ("{node_name}:" or '
+                          f'"/**:" with ros__parameters:){present}')
+    for key in params:
+        if key in (refused or {}):
+            raise ConfigError(f'{source}: {node_name}: {key}: {refused[key]}')
+    if known is not None:
+        allowed = set(known) | ROS_BUILTIN_PARAMETERS
+        wide = allowed if shared_known is None else allowed | set(shared_known)
+        unknown = {k for k in params if k not in (wide if k in shared else allowed)}
+        if unknown:
+            close = [m for k in sorted(unknown) for m in get_close_matches(k, known, 1, 0.75)]
+            hint = f' (did you mean {", ".join(close)}?)' if close else ''
+            raise ConfigError(f'{source}: {node_name}: unknown parameter(s) '
+                              f'{key_list(unknown)}{hint}')
+    return {k: v for k, v in params.items()
+            if k not in ROS_BUILTIN_PARAMETERS and (known is None or k in known)}
+
+
+def section_applies(key: Any, node_name: str) -> bool:
+    """Whether params-file section ``key`` configures node ``node_name``."""
+    if not isinstance(key, str):
+        return False
+    return key in (node_name, '/**') or (key.startswith('/') and key.rsplit('/', 1)[-1] == \
+        node_name)
+
+
+def _names(params: dict, source: str, section: str) -> dict[str, Any]:
+    """``params`` whose keys are all names (printable non-empty strings), else ConfigError."""
+    for key in params:
+        if not isinstance(key, str) or not key.isprintable() or not key:
+            raise ConfigError(f'{source}: section {section}: parameter name {key!r} is not a '
+                              'name')
+    return params
 
 
 def check_field(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:

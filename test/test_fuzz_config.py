@@ -182,7 +182,9 @@ def config_case(node: str, load: Callable, config_cls: type, path: Path,
     known = {f.name for f in fields(config_cls)} | {f.name for f in fields(InversionConfig)}
     given_known = {k: v for k, v in params.items() if k in known}
     if isinstance(result, ConfigError):  # the defaults are valid: a given field is to blame
-        assert any(isinstance(k, str) and k in str(result) for k in given_known), str(result)
+        not_names = [k for k in params if not (isinstance(k, str) and k and k.isprintable())]
+        assert any(isinstance(k, str) and k in str(result) for k in given_known) or \
+            (not_names and str(result).endswith('is not a name')), str(result)
     else:
         assert_valid(result, given_known)
 

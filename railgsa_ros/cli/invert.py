@@ -61,12 +61,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def build_config(args: argparse.Namespace, rate_hz: float) -> object:
     """Params file (if any), then the command-line choices; rate_hz from the bag unless set."""
-    from railgsa_ros.config import load_yaml, ros_parameters
+    from railgsa_ros.cli.params import read_params
     from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
 
-    params = dict(ros_parameters(load_yaml(args.params), NODE_NAME)) if args.params else {}
     known = set(InversionConfig.__dataclass_fields__)
-    params = {k: v for k, v in params.items() if k in known}
+    params = read_params(args.params, (NODE_NAME,), known, 'invert') if args.params else {}
     params.setdefault('rate_hz', rate_hz)
     for name in ('method', 'band'):
         if getattr(args, name) is not None:
@@ -141,11 +140,17 @@ def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
     """uncertainty_node's band for the same samples; its stamps equal the pipeline output's."""
     import numpy as np
 
+    from railgsa_ros.cli.params import read_params
     from railgsa_ros.errors import InputError
-    from railgsa_ros.uncertainty import UncertaintyConfig, load_config, offline_bands
+    from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
     from railgsa_ros.uq.uncertainty_file import load_uncertainty
 
-    base = load_config(args.uncertainty_params) if args.uncertainty_params else UncertaintyConfig()
+    base = UncertaintyConfig()
+    if args.uncertainty_params:  # the inversion comes from --params (equal to the node's)
+        known = set(UncertaintyConfig.__dataclass_fields__) - {'inversion'}
+        base = UncertaintyConfig.from_mapping(read_params(
+            args.uncertainty_params, ('uncertainty_node',), known, 'invert --bands'),
+            args.uncertainty_params)
     band = offline_bands(inp.stamps_ns, inp.acc_z, inp.speed_mps, inp.frame_ids,
                          config=base.with_(inversion=inp.config), vehicle=inp.vehicle,
                          dists=load_uncertainty(args.uncertainty) if args.uncertainty else None,

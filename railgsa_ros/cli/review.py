@@ -56,13 +56,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def parameters(args: argparse.Namespace) -> dict[str, Any]:
     """Params-file values (irregularity_node, then uncertainty_node on top), then the options."""
-    from railgsa_ros.config import load_yaml, ros_parameters
+    from dataclasses import fields
+
+    from railgsa_ros.cli.params import read_params
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.uncertainty import UncertaintyConfig
 
     params: dict[str, Any] = {}
     if args.params:
-        doc = load_yaml(args.params)
-        for node in ('irregularity_node', 'uncertainty_node'):
-            params.update(ros_parameters(doc, node))
+        known = {f.name for f in (*fields(UncertaintyConfig), *fields(InversionConfig))
+                 if f.name != 'inversion'} | {'vehicle_file', 'uncertainty_file'}
+        params = read_params(args.params, ('irregularity_node', 'uncertainty_node'), known,
+                             'review')
     for name in ('method', 'band'):
         if getattr(args, name) is not None:
             params[name] = getattr(args, name)

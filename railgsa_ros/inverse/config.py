@@ -118,7 +118,7 @@ def _check(name: str, value: Any, default: Any, meta: Mapping[str, Any]) -> Any:
 
 def load_config(path: str | Path) -> InversionConfig:
     """Read ``irregularity_node: ros__parameters:`` of a params file; other keys are ignored."""
-    params = ros_parameters(load_yaml(path), NODE_NAME)
+    params = ros_parameters(load_yaml(path), NODE_NAME, source=str(path))
     keep = {f.name for f in fields(InversionConfig)}
     return InversionConfig.from_mapping({k: v for k, v in params.items() if k in keep},
                                         source=str(path))

@@ -92,7 +92,7 @@ class UncertaintyConfig:
 def load_config(path: str | Path) -> UncertaintyConfig:
     """Read ``uncertainty_node: ros__parameters:`` of a params file (node-only keys such as
     ``vehicle_file`` are ignored here)."""
-    params = ros_parameters(load_yaml(path), NODE_NAME)
+    params = ros_parameters(load_yaml(path), NODE_NAME, source=str(path))
     keep = {f.name for f in fields(UncertaintyConfig)} | {f.name for f in
                                                           fields(InversionConfig)}
     return UncertaintyConfig.from_mapping({k: v for k, v in params.items() if k in keep},
