@@ -41,7 +41,8 @@ class InversionConfig:
     fir_tolerance: float = _p(1e-5, 'band FIR cut where the impulse response L1 tail < this',
                               (1e-9, 1e-2))
     rate_hz: float = _p(1000.0, 'nominal IMU sample rate, Hz', (1.0, 1e5))
-    speed_mps: float = _p(20.0, 'speed used when no odometry is given, m/s', (0.0, 200.0))
+    speed_mps: float = _p(20.0, 'speed of every sample when use_odom is false (offline: '
+                                '--speed), m/s', (0.0, 200.0))
     min_design_speed_mps: float = _p(10.0, 'band held at this speed below it; sets delay, m/s',
                                      (0.5, 200.0))
     max_speed_mps: float = _p(70.0, 'band held at this speed above it; sets the multirate '
@@ -73,6 +74,11 @@ class InversionConfig:
     saturation_margin_mps2: float = _p(0.01, 'samples within this of the range are saturated',
                                        (0.0, 1e3))
     frame_id: str = _p('imu_link', "expected IMU frame_id ('' accepts any)")
+    noise_limit_m: float = _p(1e-4, 'sensor noise propagated into the band above which an '
+                                    'output is INVALID (DEGRADED above half of it), m',
+                              (1e-9, 1.0))
+    rate_tolerance: float = _p(0.02, 'relative difference of the measured IMU rate from '
+                                     'rate_hz beyond which outputs are INVALID', (1e-4, 1.0))
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -46,6 +46,7 @@ from railgsa_ros.inverse.multirate import (
     rate_dtype,
     rolloff,
 )
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
@@ -57,14 +58,30 @@ MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
 @dataclass(frozen=True)
 class Output:
     """Reconstruction: stamps_ns (K,) int64 of the IMU samples, chainage_m (K,), u_m (K,) in m,
-    or (P, K) for a bank of parameter sets."""
+    or (P, K) for a bank of parameter sets; quality (K,) uint8 (:class:`Quality` codes) and the
+    speed at each sample speed_mps (K,) m/s (None only in outputs built by hand)."""
 
     stamps_ns: np.ndarray
     chainage_m: np.ndarray
     u_m: np.ndarray
+    quality: np.ndarray | None = None
+    speed_mps: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.stamps_ns.size)
+
+    @classmethod
+    def concat(cls, outs: list[Output], channels: int | None = None) -> Output:
+        """Join outputs in order; ``channels``: P of a (P, K) bank when ``outs`` may be empty."""
+        outs = [o for o in outs if len(o)]
+        if len(outs) == 1:
+            return outs[0]
+        u0 = np.zeros(0) if channels is None else np.zeros((channels, 0))
+        return cls(np.concatenate([o.stamps_ns for o in outs] + [np.zeros(0, np.int64)]),
+                   np.concatenate([o.chainage_m for o in outs] + [np.zeros(0)]),
+                   np.concatenate([o.u_m for o in outs] + [u0], axis=-1),
+                   np.concatenate([o.quality for o in outs] + [np.zeros(0, np.uint8)]),
+                   np.concatenate([o.speed_mps for o in outs] + [np.zeros(0)]))
 
 
 def vertical(accel: np.ndarray, axis: str) -> np.ndarray:
@@ -84,25 +101,27 @@ def taper(n: np.ndarray, length: int) -> np.ndarray:
 
 
 class _Meta:
-    """Per-sample metadata waiting in the delay line: stamps, chainage, speed, emit flag."""
+    """Per-sample metadata waiting in the delay line: stamps, chainage, speed, emit flag, input
+    quality."""
+
+    FIELDS = ('stamps', 'chainage', 'speed', 'emit', 'quality')
 
     def __init__(self) -> None:
         self.stamps = np.zeros(0, np.int64)
         self.chainage = np.zeros(0)
         self.speed = np.zeros(0)
         self.emit = np.zeros(0, bool)
+        self.quality = np.zeros(0, np.uint8)
 
-    def extend(self, stamps: np.ndarray, chainage: np.ndarray, speed: np.ndarray,
-               emit: np.ndarray) -> None:
-        self.stamps = np.concatenate([self.stamps, stamps])
-        self.chainage = np.concatenate([self.chainage, chainage])
-        self.speed = np.concatenate([self.speed, speed])
-        self.emit = np.concatenate([self.emit, emit])
+    def extend(self, *values: np.ndarray) -> None:
+        for name, value in zip(self.FIELDS, values, strict=True):
+            setattr(self, name, np.concatenate([getattr(self, name), value]))
 
     def pop(self, count: int) -> tuple[np.ndarray, ...]:
-        out = (self.stamps[:count], self.chainage[:count], self.emit[:count])
-        self.stamps, self.chainage = self.stamps[count:], self.chainage[count:]
-        self.speed, self.emit = self.speed[count:], self.emit[count:]
+        """(stamps, chainage, speed, emit, quality) of the oldest ``count`` samples."""
+        out = tuple(getattr(self, name)[:count] for name in self.FIELDS)
+        for name in self.FIELDS:
+            setattr(self, name, getattr(self, name)[count:])
         return out
 
 
@@ -178,11 +197,20 @@ class InversionPipeline:
 
     def push(self, stamps_ns: np.ndarray, acc_z: np.ndarray,
              speed_mps: np.ndarray | float | None = None,
-             frame_ids: np.ndarray | None = None) -> Output:
+             frame_ids: np.ndarray | None = None,
+             quality: np.ndarray | None = None) -> Output:
         """Feed samples: stamps (T,) int64 ns, upward specific force (T,) m/s^2 (+g at rest, see
-        ``vertical``), speed (T,) or scalar m/s (None: ``config.speed_mps``), frame ids (T,)."""
+        ``vertical``), speed (T,) or scalar m/s (None: ``config.speed_mps``), frame ids (T,),
+        input quality (T,) :class:`Quality` codes (None: VALID) that the delay line carries to
+        each output (raised there for the warm-up, the tail and bridged input)."""
         speed = self.config.speed_mps if speed_mps is None else speed_mps
         clean = self.sanitizer.process(stamps_ns, acc_z, speed, frame_ids)
+        if quality is None:
+            q_clean = np.zeros(clean.accel.size, np.uint8)
+        else:
+            pos = clean.positions()
+            q_clean = np.where(pos >= 0, np.asarray(quality, np.uint8)[np.maximum(pos, 0)], 0
+                               ).astype(np.uint8)
         cuts = np.flatnonzero(clean.reset_before)
         outs = []
         for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [clean.accel.size]]),
@@ -190,7 +218,7 @@ class InversionPipeline:
             if lo in cuts:
                 outs.append(self._end_segment())
             if hi > lo:
-                outs.append(self._run(clean, slice(lo, hi)))
+                outs.append(self._run(clean, q_clean, slice(lo, hi)))
         return self._public(self._join(outs))
 
     def flush(self) -> Output:
@@ -261,6 +289,8 @@ class InversionPipeline:
         self._n = 0
         self._meta = _Meta()
         self._meta_start = 0  # segment index of the oldest sample in the delay line
+        self._bridged = np.zeros(0, np.int64)  # segment indices of bridged samples still seen
+        self._tail_from = np.iinfo(np.int64).max  # outputs from here on: window past the end
         self._last_a = 0.0
         self._bias = (0.0, 0)  # running sum (m/s^2) and count of the segment's samples
         self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
@@ -269,8 +299,8 @@ class InversionPipeline:
         if self._fir is not None:
             self._fir.reset()
 
-    def _run(self, clean: Clean, sl: slice) -> Output:
-        """Process clean samples of one segment."""
+    def _run(self, clean: Clean, quality: np.ndarray, sl: slice) -> Output:
+        """Process clean samples of one segment (input quality codes ``quality`` (N,))."""
         cfg = self.config
         stamps, speed = clean.stamps_ns[sl], clean.speed[sl]
         chain = self._chainage(stamps, speed)
@@ -284,9 +314,9 @@ class InversionPipeline:
         self._last_a = float(a_s[-1])
         emit = ~clean.synthetic[sl]
         if cfg.smoother:
-            self._offline.append((a_s, stamps, chain, speed, emit))
+            self._offline.append((a_s, stamps, chain, speed, emit, quality[sl]))
             return self._join([])
-        return self._advance(a_s, stamps, chain, speed, emit)
+        return self._advance(a_s, stamps, chain, speed, emit, quality[sl])
 
     def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Trapezoidal integral of speed over the stamps, continued across calls (m); time going
@@ -302,14 +332,15 @@ class InversionPipeline:
             chain = (stamps - stamps[0]).astype(float)
             chain *= speed[0] * 1e-9
             chain += c0 + 0.5 * (v0 + speed[0]) * first * 1e-9
-        else:  # in the order of c0 + cumsum(0.5 (v[k] + v[k-1]) (t[k] - t[k-1]) 1e-9)
-            chain = np.empty(stamps.size)
-            chain[0] = (v0 + speed[0]) * first
-            np.subtract(stamps[1:], stamps[:-1], out=chain[1:])
-            chain[1:] *= speed[1:] + speed[:-1]
-            chain *= 0.5e-9
-            np.cumsum(chain, out=chain)
-            chain += c0
+        else:  # c0, then one step 0.5 (v[k] + v[k-1]) (t[k] - t[k-1]) 1e-9 after the other:
+            # a running sum that starts from c0 is the same for any chunking
+            steps = np.empty(stamps.size + 1)
+            steps[0] = c0
+            steps[1] = (v0 + speed[0]) * first * 0.5e-9
+            np.subtract(stamps[1:], stamps[:-1], out=steps[2:])
+            steps[2:] *= speed[1:] + speed[:-1]
+            steps[2:] *= 0.5e-9
+            chain = np.cumsum(steps)[1:]
         self._chain = (int(stamps[-1]), float(chain[-1]), float(speed[-1]))
         return chain
 
@@ -323,11 +354,15 @@ class InversionPipeline:
         return a_s - sums / counts
 
     def _advance(self, a_s: np.ndarray, stamps: np.ndarray, chain: np.ndarray,
-                 speed: np.ndarray, emit: np.ndarray, u: np.ndarray | None = None) -> Output:
+                 speed: np.ndarray, emit: np.ndarray, quality: np.ndarray,
+                 u: np.ndarray | None = None) -> Output:
         """Method + band over one segment piece, split only where a filter is redesigned."""
-        self._meta.extend(stamps, chain, speed, emit)
-        per = self.switch_period
         n0 = self._n
+        self._meta.extend(stamps, chain, speed, emit, quality)
+        bridged = np.flatnonzero(~emit)
+        if bridged.size and self._tail_from == np.iinfo(np.int64).max:  # not the end pad
+            self._bridged = np.concatenate([self._bridged, n0 + bridged])
+        per = self.switch_period
         bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per)  # segment sample indices
         outs = []
         lo = 0
@@ -386,11 +421,37 @@ class InversionPipeline:
         d = self.delay_samples
         n_old, self._n = self._n, self._n + t_len
         count = max(0, self._n - d) - max(0, n_old - d)
-        stamps, chain, emit = self._meta.pop(count)
+        first = self._meta_start
+        stamps, chain, speed, emit, quality = self._meta.pop(count)
         self._meta_start += count
         keep = slice(None) if emit.all() else emit  # no bridged samples: views, no copies
         self._counters['emitted'] += int(emit.sum())
-        return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep])
+        quality = self._window_quality(first, quality)
+        return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep], quality[keep],
+                      speed[keep])
+
+    def _window_quality(self, first: int, quality: np.ndarray) -> np.ndarray:
+        """Input quality of the samples at segment indices first.. raised by their band window
+        [n - D, n + D]: INVALID where it reaches into the fade-in or before the segment start
+        (n < D + taper) or past the segment's last real sample (the tail), at least DEGRADED
+        where it holds a bridged sample."""
+        d = self.delay_samples
+        warm = d + round(self.config.taper_s * self.config.rate_hz)
+        last = first + quality.size
+        if first >= warm and last <= self._tail_from and (
+                self._bridged.size == 0 or self._bridged[-1] < first - d):
+            self._bridged = self._bridged[-1:]  # the usual case: nothing to raise
+            return quality
+        n = np.arange(first, last)
+        out = np.maximum(quality, np.where(
+            (n < warm) | (n >= self._tail_from), Quality.INVALID, Quality.VALID)).astype(np.uint8)
+        if self._bridged.size:
+            hits = (np.searchsorted(self._bridged, n + d, side='right')
+                    - np.searchsorted(self._bridged, n - d, side='left'))
+            out = np.maximum(out, np.where(hits > 0, Quality.DEGRADED, Quality.VALID)
+                             ).astype(np.uint8)
+            self._bridged = self._bridged[self._bridged >= last - d]
+        return out
 
     def _end_segment(self) -> Output:
         """Pad the segment with a faded-out acceleration, emit what is pending, restart."""
@@ -401,14 +462,16 @@ class InversionPipeline:
         if pending:
             fade = 1.0 - taper(np.arange(d), round(cfg.taper_s * cfg.rate_hz))
             pad = (self._last_a * fade, np.zeros(d, np.int64), np.zeros(d), np.zeros(d),
-                   np.zeros(d, bool))
+                   np.zeros(d, bool), np.zeros(d, np.uint8))
+            self._tail_from = pending - d  # these outputs' windows reach into the pad
             if cfg.smoother:
-                a_s, stamps, chain, speed, emit = (np.concatenate(parts) for parts in
-                                                   zip(*self._offline, pad, strict=True))
+                a_s, stamps, chain, speed, emit, quality = (
+                    np.concatenate(parts) for parts in zip(*self._offline, pad, strict=True))
                 self._offline = []
+                self._bridged = np.flatnonzero(~emit[:pending])
                 if isinstance(self._stage, KalmanInverse):
                     self._stage.set_speed(float(np.median(speed[emit])))
-                    out.append(self._advance(a_s, stamps, chain, speed, emit,
+                    out.append(self._advance(a_s, stamps, chain, speed, emit, quality,
                                              u=self._stage.smooth(a_s)))
             else:
                 out.append(self._advance(*pad))
@@ -417,15 +480,9 @@ class InversionPipeline:
 
     def _join(self, outs: list[Output]) -> Output:
         """Concatenate internal outputs (u always (P, K))."""
-        outs = [o for o in outs if len(o)]
-        if len(outs) == 1:
-            return outs[0]
-        p = self.theta.shape[0]
-        stamps = np.concatenate([o.stamps_ns for o in outs] + [np.zeros(0, np.int64)])
-        chain = np.concatenate([o.chainage_m for o in outs] + [np.zeros(0)])
-        u = np.concatenate([o.u_m for o in outs] + [np.zeros((p, 0))], axis=1)
-        return Output(stamps, chain, u)
+        return Output.concat(outs, self.theta.shape[0])
 
     def _public(self, out: Output) -> Output:
         """u as (K,) for a single parameter set, (P, K) for a bank."""
-        return Output(out.stamps_ns, out.chainage_m, out.u_m[0] if self._squeeze else out.u_m)
+        return Output(out.stamps_ns, out.chainage_m, out.u_m[0] if self._squeeze else out.u_m,
+                      out.quality, out.speed_mps)

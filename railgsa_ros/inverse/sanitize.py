@@ -34,13 +34,20 @@ def frame_mask(frame_ids: np.ndarray | None, expected: str) -> np.ndarray | None
 @dataclass(frozen=True)
 class Clean:
     """Samples to invert: stamps_ns (N,) int64, accel (N,) m/s^2, speed (N,) m/s, synthetic (N,)
-    (bridged, no output) and reset_before (N,) (restart the filters before this sample)."""
+    (bridged, no output), reset_before (N,) (restart the filters before this sample) and index
+    (N,) int64: the position of each sample in the chunk given to ``process`` (-1 for synthetic
+    samples), None when every sample was accepted in order (index = arange)."""
 
     stamps_ns: np.ndarray
     accel: np.ndarray
     speed: np.ndarray
     synthetic: np.ndarray
     reset_before: np.ndarray
+    index: np.ndarray | None = None
+
+    def positions(self) -> np.ndarray:
+        """``index`` as an array (arange when None)."""
+        return np.arange(self.stamps_ns.size) if self.index is None else self.index
 
 
 class InputSanitizer:
@@ -92,7 +99,9 @@ class InputSanitizer:
             part = self._classify(stamps[sl], accel[sl], speed[sl],
                                   None if frame_ids is None else frame_ids[sl])
             part.reset_before[:1] |= jumped  # time went backwards here: a new stream
-            parts.append(part)
+            pos = part.positions()
+            parts.append(Clean(part.stamps_ns, part.accel, part.speed, part.synthetic,
+                               part.reset_before, np.where(pos >= 0, pos + start, -1)))
             if end == stamps.size:
                 break
             self.reset()
@@ -101,8 +110,8 @@ class InputSanitizer:
         if len(parts) == 1:
             return parts[0]
         return Clean(*(np.concatenate(f) for f in zip(
-            *((p.stamps_ns, p.accel, p.speed, p.synthetic, p.reset_before) for p in parts),
-            strict=True)))
+            *((p.stamps_ns, p.accel, p.speed, p.synthetic, p.reset_before, p.index)
+              for p in parts), strict=True)))
 
     def _all_clean(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray,
                    frame_ids: np.ndarray | None) -> bool:
@@ -194,14 +203,17 @@ class InputSanitizer:
                               'saturated': int(sat.sum()), 'stuck': int(stuck.sum()),
                               'duplicate': int(dup.sum()),
                               'out_of_order': int(ooo.sum()), 'accepted': accepted.size})
-        return self._gaps(accepted, accel[sel], speed[sel])
+        index = np.arange(stamps.size)[sel]
+        return self._gaps(accepted, accel[sel], speed[sel], index)
 
-    def _gaps(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray) -> Clean:
-        """Mark gaps among accepted samples; bridge the short ones when the policy says so."""
+    def _gaps(self, stamps: np.ndarray, accel: np.ndarray, speed: np.ndarray,
+              index: np.ndarray) -> Clean:
+        """Mark gaps among accepted samples (chunk positions ``index``); bridge the short ones
+        when the policy says so."""
         n = stamps.size
         reset = np.zeros(n, bool)
         if n == 0:
-            return Clean(stamps, accel, speed, reset.copy(), reset)
+            return Clean(stamps, accel, speed, reset.copy(), reset, index)
         if self._last is None:
             prev_t, prev_a, prev_v = stamps[0], accel[0], speed[0]
         else:
@@ -213,7 +225,7 @@ class InputSanitizer:
         gaps = np.flatnonzero(dt > self.gap_ns)
         self.counters['gap'] += gaps.size
         if gaps.size == 0:
-            return Clean(stamps, accel, speed, reset.copy(), reset)
+            return Clean(stamps, accel, speed, reset.copy(), reset, index)
         bridge = (dt[gaps] <= self.max_bridge_ns) if self.gap_policy == 'bridge' else \
             np.zeros(gaps.size, bool)
         reset[gaps[~bridge]] = True
@@ -237,4 +249,6 @@ class InputSanitizer:
         out_t[~real], out_a[~real], out_v[~real] = syn_t, syn_a, syn_v
         out_reset = np.zeros(pos.size, bool)
         out_reset[real] = reset
-        return Clean(out_t, out_a, out_v, ~real, out_reset)
+        out_index = np.full(pos.size, -1)
+        out_index[real] = index
+        return Clean(out_t, out_a, out_v, ~real, out_reset, out_index)

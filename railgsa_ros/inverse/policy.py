@@ -1,0 +1,575 @@
+"""The input policy: every decision about IMU and odometry input, the same live and offline.
+
+``irregularity_node``, ``uncertainty_node``, ``railgsa invert [--bands]`` and ``railgsa review``
+feed an :class:`InputPolicy` and publish what it returns. It owns (docs/inversion.md, "Input
+policy"):
+
+- REP 145 input: accel (T, 3) in the sensor frame, the vertical axis picked by ``accel_axis``;
+  covariance[0] = -1 (or NaN) marks the acceleration absent (the sample is rejected as ``nan``),
+  an all-zero covariance is unknown.
+- noise: the median of the configured axis' reported variance over the first NOISE_SAMPLES IMU
+  samples (absent or unknown ones skipped), else ``noise_std_mps2``^2; it designs the Kalman
+  method and the sensor noise floor (``observability.NoiseFloor``).
+- speed: the newest odometry sample at or before an IMU stamp if it is not older than
+  ``odom_timeout_s``, else UNKNOWN (the output is INVALID). IMU samples wait until that is
+  final: until odometry newer than them has arrived, or IMU stamps ``odom_timeout_s`` later,
+  or HOLD_SAMPLES later samples, or ``flush``; so the decisions depend on the data, not on how
+  it was batched (odometry must arrive in stamp order; older odometry is counted and ignored,
+  odometry going back by more than ``backward_reset_s`` restarts it). Non-finite odometry and
+  speeds beyond SPEED_LIMIT_MPS are counted and ignored (no IMU sample is dropped); a negative
+  speed is reverse running: the band uses |v|, the chainage decreases, it is counted and
+  reported. ``speed_mps`` is used only with ``use_odom`` false (``--speed`` offline).
+- quality per sample (:class:`~railgsa_ros.inverse.quality.Quality`), carried through the band
+  delay line; INVALID outputs have u = NaN.
+- plausibility: gravity on the configured axis and sign, the measured rate against
+  ``rate_hz``, speed known, every sample rejected, the frame policy; ``findings`` and
+  ``status`` say what to do in one line.
+- rebuild on a parameter change (old filters flushed, chainage continued), reset, flush.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.observability import NoiseFloor
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+from railgsa_ros.inverse.quality import Quality, quality_counts
+from railgsa_ros.inverse.sanitize import REASONS, SPEED_LIMIT_MPS, frame_mask
+from railgsa_ros.vehicle import VehicleParams, as_theta
+
+OK, WARN, ERROR = 0, 1, 2  #: finding levels (diagnostic_msgs/DiagnosticStatus levels)
+NOISE_SAMPLES = 64  #: IMU samples whose reported variances decide the noise
+HOLD_SAMPLES = 1 << 16  #: an IMU sample waits for odometry at most this many later samples
+GRAVITY_TAU_S = 1.0  #: time constant of the per-axis running mean that finds gravity, s
+GRAVITY_TOLERANCE = 0.25  #: the vertical axis must read gravity within this fraction
+RATE_BLOCK = 512  #: stamp steps per rate measurement (median: robust to dropouts and jitter)
+REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
+AXES = 'xyz'
+_HINTS = {'wrong_frame': "set frame_id to the driver's frame_id or wrong_frame_policy to "
+                         'accept',
+          'nan': 'the accelerations are NaN or marked absent (covariance[0] = -1)',
+          'saturated': 'check saturation_mps2 and the units of the accelerometer',
+          'stuck': 'the sensor repeats one value: it is frozen, or raise stuck_s',
+          'out_of_order': 'the stamps do not increase: check the driver clock',
+          'duplicate': 'the stamps repeat: check the driver clock'}
+
+
+@dataclass(frozen=True)
+class PolicyOptions:
+    """Input options that are not inversion parameters (the nodes' parameters of these names).
+
+    use_odom: speed from odometry (false: ``speed_mps`` for every sample); odom_timeout_s (s):
+    odometry older than this is missing; wrong_frame_policy: 'accept' (default: a driver's own
+    frame_id is used, with a WARN finding) or 'reject' (strict: such samples are rejected);
+    stuck_s (s, 0 = off) and backward_reset_s (s): see ``InputSanitizer``.
+    """
+
+    use_odom: bool = True
+    odom_timeout_s: float = 1.0
+    wrong_frame_policy: str = 'accept'
+    stuck_s: float = 0.5
+    backward_reset_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.wrong_frame_policy not in ('accept', 'reject'):
+            raise ConfigError(f'wrong_frame_policy: expected accept or reject, got '
+                              f'{self.wrong_frame_policy!r}')
+        for name in ('odom_timeout_s', 'backward_reset_s'):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f'{name}: expected a positive number of s, got {value!r}')
+        if not (np.isfinite(self.stuck_s) and self.stuck_s >= 0):
+            raise ConfigError(f'stuck_s: expected >= 0 s, got {self.stuck_s!r}')
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> PolicyOptions:
+        """The options found in ``values`` (e.g. a node's parameters); other keys ignored."""
+        return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One plausibility verdict: key ('gravity', 'rate', 'speed', 'odometry', 'frame',
+    'rejected', 'noise'), level (OK/WARN/ERROR) and a one-line message saying what to do."""
+
+    key: str
+    level: int
+    message: str
+
+
+class _Held:
+    """IMU samples waiting for their speed decision, in arrival order."""
+
+    def __init__(self) -> None:
+        self.stamps = np.zeros(0, np.int64)
+        self.accel = np.zeros((0, 3))
+        self.frames = np.zeros(0, dtype=object)
+        self.flags = np.zeros(0, np.uint8)  # input quality from gravity and rate checks
+        self.arrival = np.zeros(0, np.int64)  # index of the sample since the policy started
+
+    def __len__(self) -> int:
+        return int(self.stamps.size)
+
+    def extend(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
+               flags: np.ndarray, arrival: np.ndarray) -> None:
+        self.stamps = np.concatenate([self.stamps, stamps])
+        self.accel = np.concatenate([self.accel, accel])
+        self.frames = np.concatenate([self.frames, frames])
+        self.flags = np.concatenate([self.flags, flags])
+        self.arrival = np.concatenate([self.arrival, arrival])
+
+    def pop(self, count: int) -> tuple[np.ndarray, ...]:
+        out = (self.stamps[:count], self.accel[:count], self.frames[:count],
+               self.flags[:count])
+        self.stamps, self.accel = self.stamps[count:], self.accel[count:]
+        self.frames, self.flags = self.frames[count:], self.flags[count:]
+        self.arrival = self.arrival[count:]
+        return out
+
+
+class InputPolicy:
+    """Odometry and IMU samples in, reconstructed samples with their quality out.
+
+    ``config``: InversionConfig; ``vehicle``: the nominal vehicle (VehicleParams or theta (5,)):
+    it sets the noise floor, so every policy with the same config and vehicle makes the same
+    decisions; ``bank``: theta (P, 5) for a bank pipeline (uncertainty: outputs u (P, K)), else
+    the nominal vehicle is inverted; ``options``: PolicyOptions; ``noise_variance``: a fixed
+    accelerometer variance ((m/s^2)^2) instead of the rule from the data.
+    """
+
+    def __init__(self, config: InversionConfig | None = None,
+                 vehicle: VehicleParams | np.ndarray | None = None, *,
+                 bank: np.ndarray | None = None, options: PolicyOptions | None = None,
+                 noise_variance: float | None = None) -> None:
+        self.config = config if config is not None else InversionConfig()
+        self.theta = as_theta(vehicle if vehicle is not None else VehicleParams())
+        if self.theta.ndim != 1:
+            raise ConfigError('vehicle: the policy takes the nominal vehicle (5,); pass a '
+                              'parameter bank as bank=')
+        self.bank = None if bank is None else np.atleast_2d(as_theta(bank))
+        self.options = options if options is not None else PolicyOptions()
+        self._fixed_variance = noise_variance
+        self.noise_variance: float | None = noise_variance  #: (m/s^2)^2 once decided
+        self.noise_source = 'given' if noise_variance is not None else ''
+        self.pipeline: InversionPipeline | None = None
+        self.noise: NoiseFloor | None = None
+        self.v_invalid = self.v_degraded = np.nan  #: speed limits of the noise floor, m/s
+        self._counts: Counter[str] = Counter()
+        self._retired: Counter[str] = Counter()
+        self._findings: dict[str, Finding] = {}
+        self._held = _Held()
+        self._reported: list[float] = []  # variances of the first NOISE_SAMPLES samples
+        self._received = 0  # IMU samples given so far
+        self._newest_imu = np.iinfo(np.int64).min
+        self._odom_t = np.zeros(0, np.int64)
+        self._odom_v = np.zeros(0)
+        self._gravity: np.ndarray | None = None  # running mean (3,) m/s^2 of the finite rows
+        self._rate_steps = np.zeros(0, np.int64)  # stamp steps of the open rate block
+        self._rate_prev: int | None = None  # last finite stamp seen
+        self._rate_ok = True
+        self._reject_run = 0  # samples pushed since the last accepted one
+        self._start_chainage = 0.0
+        self._check_units()
+        if noise_variance is not None:
+            self._build()
+
+    # ------------------------------------------------------------------ public interface
+    @property
+    def delay_samples(self) -> int:
+        """Band delay of the pipeline (samples; 0 before it is built)."""
+        return self.pipeline.delay_samples if self.pipeline is not None else 0
+
+    @property
+    def held(self) -> int:
+        """IMU samples waiting for their speed decision (or the noise decision)."""
+        return len(self._held)
+
+    @property
+    def chainage_m(self) -> float:
+        """Chainage of the newest sample pushed into the filters (m)."""
+        return self.pipeline.chainage_m if self.pipeline is not None else self._start_chainage
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Counts by reason: the sanitiser's and the pipeline's (over every rebuild), plus
+        odom_received, odom_nan, odom_implausible, odom_out_of_order, odom_time_reset,
+        speed_unknown, reverse, gravity_invalid, rate_invalid, wrong_frame_accepted and the
+        emitted outputs by quality: valid, degraded, invalid."""
+        live = Counter(self.pipeline.counters) if self.pipeline is not None else Counter()
+        return dict(self._retired + live + self._counts)
+
+    @property
+    def findings(self) -> list[Finding]:
+        """The current verdict of each check made so far."""
+        return list(self._findings.values())
+
+    @property
+    def status(self) -> Finding:
+        """The worst finding (ERROR > WARN > OK), or OK 'ok' before any."""
+        worst = max(self._findings.values(), key=lambda f: f.level, default=None)
+        if worst is None or worst.level == OK:
+            return Finding('status', OK, 'ok')
+        return worst
+
+    def odometry(self, stamps_ns: np.ndarray, speed_mps: np.ndarray) -> Output:
+        """Odometry samples (stamps (M,) int64 ns, speeds (M,) m/s, in stamp order as they
+        came); returns the outputs of IMU samples whose speed became known."""
+        stamps = np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64))
+        speed = np.broadcast_to(np.asarray(speed_mps, dtype=float), stamps.shape)
+        self._counts['odom_received'] += stamps.size
+        finite = np.isfinite(speed)
+        plausible = finite & (np.abs(speed) <= SPEED_LIMIT_MPS)
+        self._counts['odom_nan'] += int((~finite).sum())
+        self._counts['odom_implausible'] += int((finite & ~plausible).sum())
+        for t, v in zip(stamps[plausible].tolist(), speed[plausible].tolist(), strict=True):
+            self._add_odometry(t, v)
+        self._odometry_finding()
+        return self._release(final=False)
+
+    def imu(self, stamps_ns: np.ndarray, accel: np.ndarray,
+            frame_ids: np.ndarray | None = None,
+            covariance: np.ndarray | None = None) -> Output:
+        """IMU samples: stamps (T,) int64 ns, accel (T, 3) m/s^2 in the sensor frame (REP 145,
+        +g up at rest), frame_ids (T,) str (None: the expected one), covariance (T, 9) REP 145
+        linear_acceleration_covariance (None: unknown). Returns the outputs now final."""
+        stamps = np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64))
+        accel = np.array(accel, dtype=float, ndmin=2)
+        if accel.shape != (stamps.size, 3):
+            raise ConfigError(f'accel: expected shape ({stamps.size}, 3), got {accel.shape}')
+        frames = np.full(stamps.size, self.config.frame_id, dtype=object) \
+            if frame_ids is None else np.asarray(frame_ids, dtype=object)
+        if covariance is not None:
+            cov = np.asarray(covariance, dtype=float).reshape(stamps.size, 9)
+            absent = np.isnan(cov[:, 0]) | (cov[:, 0] == -1.0)
+            accel[absent] = np.nan
+            self._note_variances(cov, absent)
+        self._frame_check(frames)
+        flags = np.maximum(self._gravity_flags(accel), self._rate_flags(stamps, accel))
+        arrival = self._received + np.arange(stamps.size)
+        self._received += stamps.size
+        finite = stamps[np.isfinite(accel).all(axis=1)]
+        if finite.size:
+            self._newest_imu = max(self._newest_imu, int(finite.max()))
+        self._held.extend(stamps, accel, frames, flags, arrival)
+        return self._release(final=False)
+
+    def flush(self) -> Output:
+        """End of the input (offline end, node idle timeout, deactivate, shutdown): decide every
+        held sample and emit everything pending; the next sample starts afresh."""
+        out = self._release(final=True)
+        if self.pipeline is None:
+            return out
+        return Output.concat([out, self._finish(self.pipeline.flush())], self._channels)
+
+    def reset(self, reason: str = 'request') -> Output:
+        """Restart the filters (pending outputs emitted, the tail INVALID); held samples go to
+        the restarted filters."""
+        if self.pipeline is None:
+            return self._empty()
+        return self._finish(self.pipeline.reset(reason))
+
+    def rebuild(self, config: InversionConfig | None = None,
+                vehicle: VehicleParams | np.ndarray | None = None, *,
+                bank: np.ndarray | None = None,
+                options: PolicyOptions | None = None) -> Output:
+        """A parameter change: flush the old filters (their outputs are returned), build new
+        ones that continue the chainage; held samples and the noise decision are kept."""
+        out = self._empty()
+        if self.pipeline is not None:
+            out = self._finish(self.pipeline.flush())
+            self._retired.update(self.pipeline.counters)
+            self._start_chainage = self.pipeline.chainage_m
+            self.pipeline = None
+        self.config = config if config is not None else self.config
+        self.theta = as_theta(vehicle) if vehicle is not None else self.theta
+        self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
+        self.options = options if options is not None else self.options
+        self._counts['rebuild'] += 1
+        self._check_units()
+        if self.noise_variance is not None:
+            self._build()
+        return out
+
+    def noise_std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
+        """Sensor noise propagated into the band, sigma_u (m), at the given speeds (m/s)."""
+        if self.noise is None:
+            return np.full(np.shape(speeds_mps), np.nan)
+        return self.noise.sigma_m(speeds_mps)
+
+    # ------------------------------------------------------------------ building
+    @property
+    def _channels(self) -> int | None:
+        return None if self.bank is None else self.bank.shape[0]
+
+    def _empty(self) -> Output:
+        return Output.concat([], self._channels)
+
+    def _check_units(self) -> None:
+        if self.options.use_odom is False and self.config.speed_mps <= 0:
+            raise ConfigError('speed_mps: use_odom is false, so speed_mps is the speed of every '
+                              'sample and must be > 0')
+
+    def _build(self) -> None:
+        """The pipeline and the noise floor for the decided noise variance."""
+        cfg, opt = self.config, self.options
+        self.pipeline = InversionPipeline(
+            cfg, self.bank if self.bank is not None else self.theta, self.noise_variance,
+            start_chainage_m=self._start_chainage, stuck_s=opt.stuck_s,
+            backward_reset_s=opt.backward_reset_s)
+        self.noise = NoiseFloor(self.theta, cfg.band, cfg.band_order, cfg.rate_hz,
+                                self.noise_variance)
+        self.v_invalid = self.noise.speed_for(cfg.noise_limit_m)
+        self.v_degraded = max(self.noise.speed_for(cfg.noise_limit_m / 2), self.v_invalid)
+        self._findings['noise'] = Finding('noise', OK, (
+            f'sensor noise {np.sqrt(self.noise_variance):.3g} m/s^2 ({self.noise_source}): the '
+            f'band is unobservable below {self.v_invalid:.3g} m/s, degraded below '
+            f'{max(self.v_degraded, cfg.min_design_speed_mps):.3g} m/s'))
+
+    def _note_variances(self, cov: np.ndarray, absent: np.ndarray) -> None:
+        """Keep the configured axis' variances of the first NOISE_SAMPLES samples."""
+        room = NOISE_SAMPLES - self._received
+        if room <= 0 or self._fixed_variance is not None:
+            return
+        col = 4 * AXES.index(self.config.accel_axis[-1])
+        head = cov[:room]
+        var = head[:, col]
+        known = ~absent[:room] & np.any(head != 0, axis=1) & np.isfinite(var) & (var > 0)
+        self._reported.extend(var[known].tolist())
+
+    def _decide_noise(self) -> None:
+        if self._reported:
+            self.noise_variance = float(np.median(self._reported))
+            self.noise_source = f'median of {len(self._reported)} IMU-reported variances'
+        else:
+            self.noise_variance = self.config.noise_std_mps2 ** 2
+            self.noise_source = 'noise_std_mps2: the IMU reports no covariance'
+        self._build()
+
+    # ------------------------------------------------------------------ checks at arrival
+    def _frame_check(self, frames: np.ndarray) -> None:
+        match = frame_mask(frames, self.config.frame_id)
+        if match is None or match.all():
+            return
+        other = str(frames[~match][0])
+        if self.options.wrong_frame_policy == 'accept':
+            self._counts['wrong_frame_accepted'] += int((~match).sum())
+            self._findings['frame'] = Finding('frame', WARN, (
+                f'IMU frame_id {other!r} is not {self.config.frame_id!r}: accepted; set '
+                f'frame_id to {other!r} (or wrong_frame_policy to reject)'))
+        else:
+            self._findings['frame'] = Finding('frame', WARN, (
+                f'IMU frame_id {other!r} is not {self.config.frame_id!r}: rejected; set '
+                f'frame_id to {other!r} or wrong_frame_policy to accept'))
+
+    def _gravity_flags(self, accel: np.ndarray) -> np.ndarray:
+        """INVALID where the running mean of the three axes does not put gravity on the
+        configured axis and sign (off when gravity_mps2 is 0)."""
+        cfg = self.config
+        flags = np.zeros(accel.shape[0], np.uint8)
+        finite = np.isfinite(accel).all(axis=1)
+        if cfg.gravity_mps2 == 0 or not finite.any():
+            return flags
+        rows = accel[finite]
+        alpha = min(1.0, 1.0 / (GRAVITY_TAU_S * cfg.rate_hz))
+        if self._gravity is None:
+            self._gravity = rows[0].copy()
+        zi = ((1.0 - alpha) * self._gravity)[:, None]
+        mean, _ = lfilter([alpha], [1.0, alpha - 1.0], rows.T, axis=1, zi=zi)  # (3, N)
+        self._gravity = mean[:, -1].copy()
+        col = AXES.index(cfg.accel_axis[-1])
+        sign = -1.0 if cfg.accel_axis.startswith('-') else 1.0
+        up = sign * mean[col]
+        top = np.argmax(np.abs(mean), axis=0)
+        good = (top == col) & (np.abs(up - cfg.gravity_mps2)
+                               <= GRAVITY_TOLERANCE * cfg.gravity_mps2)
+        flags[finite] = np.where(good, Quality.VALID, Quality.INVALID)
+        bad = ~good
+        self._counts['gravity_invalid'] += int(bad.sum())
+        last = mean[:, -1]
+        if not bad[-1]:
+            self._findings['gravity'] = Finding('gravity', OK, (
+                f'gravity on {cfg.accel_axis} ({sign * last[col]:.2f} m/s^2)'))
+            return flags
+        k = int(np.argmax(np.abs(last)))
+        axis = ('-' if last[k] < 0 else '') + AXES[k]
+        if abs(abs(last[k]) - cfg.gravity_mps2) <= GRAVITY_TOLERANCE * cfg.gravity_mps2:
+            message = (f'gravity is on {axis} ({last[k]:+.2f} m/s^2 on {AXES[k]}), not on '
+                       f'{cfg.accel_axis}: set accel_axis to {axis!r}; outputs are INVALID '
+                       'until then')
+        else:
+            message = (f'no axis reads gravity {cfg.gravity_mps2:g} m/s^2 (largest: '
+                       f'{last[k]:+.2f} on {AXES[k]}): check the units and mounting, or set '
+                       'gravity_mps2 to 0 if the driver removes gravity; outputs are INVALID')
+        self._findings['gravity'] = Finding('gravity', ERROR, message)
+        return flags
+
+    def _rate_flags(self, stamps: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """INVALID from the sample after a block of RATE_BLOCK stamp steps whose median step
+        disagrees with rate_hz by more than rate_tolerance (until a block agrees)."""
+        cfg = self.config
+        flags = np.zeros(stamps.size, np.uint8)
+        idx = np.flatnonzero(np.isfinite(accel).all(axis=1))
+        if idx.size == 0:
+            return flags
+        t = stamps[idx]
+        prev = np.concatenate([[self._rate_prev if self._rate_prev is not None else t[0]],
+                               t[:-1]])
+        steps = t - prev
+        self._rate_prev = int(t[-1])
+        positive = steps > 0
+        cum = np.concatenate([[self._rate_steps.size], self._rate_steps.size
+                              + np.cumsum(positive)])  # open-block step count before each
+        pool = np.concatenate([self._rate_steps, steps[positive]])
+        state = np.full(idx.size, Quality.VALID if self._rate_ok else Quality.INVALID, np.uint8)
+        for b in range(pool.size // RATE_BLOCK):
+            measured = 1e9 / float(np.median(pool[b * RATE_BLOCK:(b + 1) * RATE_BLOCK]))
+            ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
+            done = int(np.searchsorted(cum[1:], (b + 1) * RATE_BLOCK))  # completing sample
+            state[done + 1:] = Quality.VALID if ok else Quality.INVALID
+            self._rate_ok = ok
+            level = OK if ok else ERROR
+            text = (f'measured IMU rate {measured:.6g} Hz, rate_hz {cfg.rate_hz:g}' if ok else
+                    f'measured IMU rate {measured:.6g} Hz differs from rate_hz {cfg.rate_hz:g} '
+                    f'by {abs(measured / cfg.rate_hz - 1) * 100:.3g} %: set rate_hz to '
+                    f'{measured:.6g}; outputs are INVALID until then')
+            self._findings['rate'] = Finding('rate', level, text)
+        self._rate_steps = pool[pool.size // RATE_BLOCK * RATE_BLOCK:]
+        flags[idx] = state
+        self._counts['rate_invalid'] += int((state == Quality.INVALID).sum())
+        return flags
+
+    # ------------------------------------------------------------------ odometry and release
+    def _add_odometry(self, t: int, v: float) -> None:
+        if self._odom_t.size and t <= self._odom_t[-1]:
+            if t < self._odom_t[-1] - self.options.backward_reset_s * 1e9:
+                self._counts['odom_time_reset'] += 1  # a new odometry stream
+                self._odom_t, self._odom_v = self._odom_t[:0], self._odom_v[:0]
+            else:
+                self._counts['odom_out_of_order'] += 1
+                return
+        self._odom_t = np.append(self._odom_t, np.int64(t))
+        self._odom_v = np.append(self._odom_v, v)
+
+    def _odometry_finding(self) -> None:
+        c = self._counts
+        bad = {k: c[k] for k in ('odom_nan', 'odom_implausible', 'odom_out_of_order') if c[k]}
+        if bad:
+            text = ', '.join(f'{k[5:]} {v}' for k, v in bad.items())
+            self._findings['odometry'] = Finding('odometry', WARN, (
+                f'odometry samples ignored ({text}): check the odometry source'))
+
+    def _ready(self) -> int:
+        """Number of held samples (a prefix) whose speed decision is final."""
+        held = self._held
+        if not self.options.use_odom or not len(held):
+            return len(held)
+        newest_odom = self._odom_t[-1] if self._odom_t.size else np.iinfo(np.int64).min
+        timeout = np.int64(round(self.options.odom_timeout_s * 1e9))
+        ready = (held.stamps <= newest_odom) | (held.arrival + HOLD_SAMPLES < self._received)
+        if self._newest_imu > np.iinfo(np.int64).min + timeout:
+            ready |= held.stamps <= self._newest_imu - timeout
+        return len(held) if ready.all() else int(np.argmin(ready))
+
+    def _speeds(self, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(speed m/s, known) at the stamps; unknown speeds are 0 (the chainage holds)."""
+        if not self.options.use_odom:
+            return np.full(stamps.size, self.config.speed_mps), np.ones(stamps.size, bool)
+        if self._odom_t.size == 0:
+            return np.zeros(stamps.size), np.zeros(stamps.size, bool)
+        idx = np.searchsorted(self._odom_t, stamps, side='right') - 1
+        j = np.maximum(idx, 0)
+        known = (idx >= 0) & (stamps - self._odom_t[j] <= round(self.options.odom_timeout_s
+                                                                  * 1e9))
+        speed = np.where(known, self._odom_v[j], 0.0)
+        keep = int(j.min())  # older odometry is no longer needed
+        self._odom_t, self._odom_v = self._odom_t[keep:], self._odom_v[keep:]
+        return speed, known
+
+    def _speed_quality(self, speed: np.ndarray, known: np.ndarray) -> np.ndarray:
+        cfg = self.config
+        v = np.abs(speed)
+        q = np.where(~known | (v < self.v_invalid), Quality.INVALID, Quality.VALID)
+        slow = (v < self.v_degraded) | (v < cfg.min_design_speed_mps) | (v > cfg.max_speed_mps)
+        return np.maximum(q, np.where(slow, Quality.DEGRADED, Quality.VALID)).astype(np.uint8)
+
+    def _release(self, final: bool) -> Output:
+        """Push the held samples whose decisions are final into the filters."""
+        if self.pipeline is None:
+            if not final and self._received < NOISE_SAMPLES:
+                return self._empty()
+            if not final or self._received:
+                self._decide_noise()
+            if self.pipeline is None:
+                return self._empty()
+        count = len(self._held) if final else self._ready()
+        if count == 0:
+            return self._empty()
+        stamps, accel, frames, flags = self._held.pop(count)
+        speed, known = self._speeds(stamps)
+        self._speed_finding(speed, known)
+        quality = np.maximum(flags, self._speed_quality(speed, known))
+        strict = self.options.wrong_frame_policy == 'reject'
+        before = self.pipeline.counters.get('accepted', 0)
+        out = self.pipeline.push(stamps, vertical(accel, self.config.accel_axis), speed,
+                                 frames.astype(str) if strict else None, quality)
+        self._reject_finding(count, self.pipeline.counters.get('accepted', 0) - before)
+        return self._finish(out)
+
+    def _speed_finding(self, speed: np.ndarray, known: np.ndarray) -> None:
+        unknown = int((~known).sum())
+        reverse = int((speed < 0).sum())
+        self._counts['speed_unknown'] += unknown
+        self._counts['reverse'] += reverse
+        timeout = self.options.odom_timeout_s
+        if not self.options.use_odom:
+            self._findings['speed'] = Finding('speed', OK, (
+                f'fixed speed_mps {self.config.speed_mps:g} m/s (use_odom false)'))
+        elif unknown and not known[-1]:
+            self._findings['speed'] = Finding('speed', WARN, (
+                f'no odometry within odom_timeout_s ({timeout:g} s) of the IMU stamps: outputs '
+                'are INVALID until a speed is known; check the odom topic (offline: --speed)'))
+        elif reverse:
+            self._findings['speed'] = Finding('speed', WARN, (
+                f'reverse running: {self._counts["reverse"]} samples at negative speed (the '
+                'chainage decreases); if the train ran forward, the odometry sign is reversed'))
+        else:
+            self._findings['speed'] = Finding('speed', OK, 'speed from odometry')
+
+    def _reject_finding(self, pushed: int, accepted: int) -> None:
+        """ERROR while every sample is rejected: since the start, or for REJECT_RUN_S."""
+        if accepted:
+            self._reject_run = 0
+            if 'rejected' in self._findings:
+                self._findings['rejected'] = Finding('rejected', OK, 'samples accepted')
+            return
+        self._reject_run += pushed
+        counters = self.counters
+        if counters.get('accepted', 0) and self._reject_run < REJECT_RUN_S * self.config.rate_hz:
+            return
+        reasons = {r: counters.get(r, 0) for r in REASONS if counters.get(r, 0)}
+        if not reasons:
+            return
+        top = max(reasons, key=reasons.get)
+        text = ', '.join(f'{k} {v}' for k, v in reasons.items())
+        self._findings['rejected'] = Finding('rejected', ERROR, (
+            f'every IMU sample is rejected ({text}): {_HINTS[top]}'))
+
+    def _finish(self, out: Output) -> Output:
+        """Count the outputs by quality and set u = NaN where INVALID."""
+        if not len(out):
+            return out
+        self._counts.update(quality_counts(out.quality))
+        invalid = out.quality == Quality.INVALID
+        if not invalid.any():
+            return out
+        u = np.array(out.u_m, dtype=float)
+        u[..., invalid] = np.nan
+        return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps)

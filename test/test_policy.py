@@ -1,0 +1,246 @@
+"""InputPolicy: live-style feeding equals offline feeding at variable speed with stops, quality
+states against the simulation's truth, and the plausibility findings."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from railgsa_ros.imu import imu_spec
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.pipeline import Output
+from railgsa_ros.inverse.policy import ERROR, OK, WARN, InputPolicy, PolicyOptions
+from railgsa_ros.inverse.quality import Quality
+from railgsa_ros.scenario import run_scenario
+
+ODOM_EVERY = 20  # odometry at 50 Hz next to a 1 kHz IMU
+CHUNK = 65536
+NO_DROPOUTS = imu_spec('adxl355', dropout_fraction=0.0)  # the tests make their own gaps
+
+
+def _covariance(run, n=None) -> np.ndarray:
+    cov = np.zeros((run.stamps_ns.size if n is None else n, 9))
+    cov[:, [0, 4, 8]] = run.accel_covariance
+    return cov
+
+
+@pytest.fixture(scope='module')
+def stop_and_go():
+    """Accelerate 0 -> 25 m/s, cruise, brake to a standstill, stand, restart: 80 s at 1 kHz."""
+    profile = np.array([0.0, 8, 16, 25, 25, 25, 24, 12, 0, 0, 0, 0, 6, 14, 20, 20])
+    return run_scenario('german-low', profile, 80.0, None, 'adxl355', seed=3)
+
+
+def offline(run, policy: InputPolicy, odom=True) -> Output:
+    """Offline feeding: all odometry first, then the IMU in chunks of 65536, then flush."""
+    outs = []
+    if odom:
+        outs.append(policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY]))
+    cov = _covariance(run)
+    for lo in range(0, run.stamps_ns.size, CHUNK):
+        sl = slice(lo, lo + CHUNK)
+        outs.append(policy.imu(run.stamps_ns[sl], run.accel[sl], None, cov[sl]))
+    outs.append(policy.flush())
+    return Output.concat(outs)
+
+
+def live(run, policy: InputPolicy, seed: int, max_lag_s: float = 0.3) -> Output:
+    """Live feeding: IMU batches of 1..500 samples as they arrive (at their last stamp),
+    odometry messages one at a time arriving with a random lag of 0..max_lag_s."""
+    rng = np.random.default_rng(seed)
+    bounds = np.cumsum(rng.integers(1, 501, size=run.stamps_ns.size))
+    bounds = np.concatenate([[0], bounds[bounds < run.stamps_ns.size], [run.stamps_ns.size]])
+    events = [(int(run.stamps_ns[hi - 1]), 1, lo, hi)
+              for lo, hi in itertools.pairwise(bounds)]
+    odom_t, odom_v = run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY]
+    lag = rng.uniform(0, max_lag_s * 1e9, odom_t.size).astype(np.int64)
+    arrival = np.maximum.accumulate(odom_t + lag)  # one odometry topic: in stamp order
+    events += [(int(a), 0, i, i + 1) for i, a in enumerate(arrival)]
+    events.sort()
+    cov = _covariance(run)
+    outs = []
+    for _, kind, lo, hi in events:
+        if kind == 0:
+            outs.append(policy.odometry(odom_t[lo:hi], odom_v[lo:hi]))
+        else:
+            outs.append(policy.imu(run.stamps_ns[lo:hi], run.accel[lo:hi], None, cov[lo:hi]))
+    outs.append(policy.flush())
+    return Output.concat(outs)
+
+
+def assert_identical(a: Output, b: Output) -> None:
+    for name in ('stamps_ns', 'chainage_m', 'u_m', 'quality', 'speed_mps'):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), name
+
+
+def test_live_feeding_equals_offline_bit_for_bit_at_variable_speed_with_stops(stop_and_go):
+    run = stop_and_go
+    cfg = InversionConfig(rate_hz=run.rate_hz)
+    ref = offline(run, InputPolicy(cfg))
+    for seed in (1, 2):
+        assert_identical(live(run, InputPolicy(cfg), seed), ref)
+    # every accepted IMU sample has exactly one output, in order
+    np.testing.assert_array_equal(ref.stamps_ns, run.stamps_ns)
+    # and the speed of each output is the odometry held at its stamp (independent lookup)
+    odom_t, odom_v = run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY]
+    held = odom_v[np.searchsorted(odom_t, run.stamps_ns, side='right') - 1]
+    np.testing.assert_array_equal(ref.speed_mps, held)
+
+
+def test_standstill_and_low_speed_are_invalid_nan_and_cruise_is_valid(stop_and_go):
+    run = stop_and_go
+    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    out = offline(run, policy)
+    q, v = out.quality, out.speed_mps
+    assert np.all(q[v < policy.v_invalid] == Quality.INVALID)
+    assert np.all(np.isnan(out.u_m[q == Quality.INVALID]))
+    assert np.all(np.isfinite(out.u_m[q != Quality.INVALID]))
+    standing = run.speed_mps == 0
+    assert standing.sum() > 5000 and np.all(q[standing] == Quality.INVALID)
+    # below min_design_speed_mps the band design is held: at best DEGRADED
+    assert np.all(q[(v >= policy.v_invalid) & (v < 10.0)] >= Quality.DEGRADED)
+    assert np.sum(q == Quality.VALID) > 20000
+    counts = policy.counters
+    assert counts['valid'] + counts['degraded'] + counts['invalid'] == run.stamps_ns.size
+
+
+def test_no_odometry_means_unknown_speed_invalid_and_a_finding():
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=1)
+    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    out = offline(run, policy, odom=False)
+    assert len(out) == run.stamps_ns.size
+    assert np.all(out.quality == Quality.INVALID) and np.all(np.isnan(out.u_m))
+    assert policy.counters['speed_unknown'] == run.stamps_ns.size
+    assert policy.status.level == WARN and 'odom' in policy.status.message
+    # the fallback speed only when asked for
+    fixed = InputPolicy(InversionConfig(rate_hz=run.rate_hz, speed_mps=20.0),
+                        options=PolicyOptions(use_odom=False))
+    out = offline(run, fixed, odom=False)
+    assert np.sum(out.quality == Quality.VALID) > 0
+
+
+def test_nan_odometry_keeps_every_imu_sample():
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=2)
+    speed = run.speed_mps.copy()
+    speed[::ODOM_EVERY][::3] = np.nan  # a third of the odometry messages are NaN
+    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    outs = [policy.odometry(run.stamps_ns[::ODOM_EVERY], speed[::ODOM_EVERY])]
+    outs.append(policy.imu(run.stamps_ns, run.accel, None, _covariance(run)))
+    outs.append(policy.flush())
+    out = Output.concat(outs)
+    np.testing.assert_array_equal(out.stamps_ns, run.stamps_ns)
+    assert policy.counters['odom_nan'] == len(speed[::ODOM_EVERY][::3])
+    assert np.sum(out.quality == Quality.VALID) > 0
+    assert {f.key: f.level for f in policy.findings}['odometry'] == WARN
+
+
+def test_negative_speed_is_reverse_running_with_decreasing_chainage():
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=2)
+    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy.odometry(run.stamps_ns[::ODOM_EVERY], -run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([policy.imu(run.stamps_ns, run.accel, None, _covariance(run)),
+                         policy.flush()])
+    assert np.all(np.diff(out.chainage_m) < 0)
+    assert policy.counters['reverse'] == run.stamps_ns.size
+    assert np.sum(out.quality == Quality.VALID) > 0
+    assert 'reverse' in policy.status.message
+
+
+def test_gravity_on_minus_y_is_a_finding_naming_the_axis_and_invalid_outputs():
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=4)
+    accel = np.zeros_like(run.accel)
+    accel[:, 0], accel[:, 1], accel[:, 2] = run.accel[:, 0], -run.accel[:, 2], run.accel[:, 1]
+    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([policy.imu(run.stamps_ns, accel, None, _covariance(run)),
+                         policy.flush()])
+    assert np.all(out.quality == Quality.INVALID) and np.all(np.isnan(out.u_m))
+    finding = {f.key: f for f in policy.findings}['gravity']
+    assert finding.level == ERROR and "accel_axis to '-y'" in finding.message
+    # configured right, the same data is fine
+    fixed = InputPolicy(InversionConfig(rate_hz=run.rate_hz, accel_axis='-y'))
+    fixed.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([fixed.imu(run.stamps_ns, accel, None, _covariance(run)),
+                         fixed.flush()])
+    assert np.sum(out.quality == Quality.VALID) > 0
+    assert {f.key: f.level for f in fixed.findings}['gravity'] == OK
+
+
+def test_rate_hz_disagreeing_with_the_data_is_an_error_finding_and_invalid():
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=5)
+    policy = InputPolicy(InversionConfig(rate_hz=800.0))
+    policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([policy.imu(run.stamps_ns, run.accel, None, _covariance(run)),
+                         policy.flush()])
+    finding = {f.key: f for f in policy.findings}['rate']
+    assert finding.level == ERROR and 'set rate_hz to 10' in finding.message
+    # INVALID from the end of the first block of steps on
+    assert np.all(out.quality[600:] == Quality.INVALID)
+
+
+def test_every_sample_rejected_for_its_frame_is_status_error():
+    run = run_scenario('german-low', 20.0, 3.0, None, 'adxl355', seed=6)
+    frames = np.full(run.stamps_ns.size, 'bad_frame')
+    strict = InputPolicy(InversionConfig(rate_hz=run.rate_hz),
+                         options=PolicyOptions(wrong_frame_policy='reject'))
+    strict.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([strict.imu(run.stamps_ns, run.accel, frames), strict.flush()])
+    assert len(out) == 0
+    assert strict.status.level == ERROR and 'wrong_frame' in strict.status.message
+    # the default accepts a driver's own frame with a warning
+    lenient = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    lenient.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([lenient.imu(run.stamps_ns, run.accel, frames), lenient.flush()])
+    assert len(out) == run.stamps_ns.size
+    finding = {f.key: f for f in lenient.findings}['frame']
+    assert finding.level == WARN and "'bad_frame'" in finding.message
+
+
+def test_warm_up_after_a_dropout_reset_is_invalid_and_the_valid_rest_is_accurate():
+    """A 0.2 s dropout with the reset policy: outputs whose band window reaches into the
+    restart are INVALID; VALID outputs match the same run without the dropout."""
+    run = run_scenario('german-low', 20.0, 40.0, None, NO_DROPOUTS, seed=7)
+    keep = np.ones(run.stamps_ns.size, bool)
+    keep[20000:20200] = False
+    cfg = InversionConfig(rate_hz=run.rate_hz, gap_policy='reset')
+
+    def invert(mask):
+        policy = InputPolicy(cfg)
+        policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+        out = Output.concat([policy.imu(run.stamps_ns[mask], run.accel[mask], None,
+                                        _covariance(run, int(mask.sum()))), policy.flush()])
+        return out, policy
+
+    out, policy = invert(keep)
+    ref, _ = invert(np.ones(run.stamps_ns.size, bool))
+    assert policy.counters['reset'] == 1
+    d, warm = policy.delay_samples, policy.delay_samples + round(cfg.taper_s * cfg.rate_hz)
+    after = np.flatnonzero(out.stamps_ns > run.stamps_ns[20199])
+    assert np.all(out.quality[after[:warm]] == Quality.INVALID)
+    before = np.flatnonzero(out.stamps_ns < run.stamps_ns[20000])
+    assert np.all(out.quality[before[-d:]] == Quality.INVALID)  # the tail before the reset
+    valid = out.quality == Quality.VALID
+    idx = np.searchsorted(ref.stamps_ns, out.stamps_ns[valid])
+    err = out.u_m[valid] - ref.u_m[idx]
+    assert np.max(np.abs(err)) < 0.05e-3, np.max(np.abs(err))  # 1.9 mm before the policy
+
+
+def test_bridged_stretch_degrades_its_window():
+    run = run_scenario('german-low', 20.0, 40.0, None, NO_DROPOUTS, seed=8)
+    keep = np.ones(run.stamps_ns.size, bool)
+    keep[20000:20100] = False  # 0.1 s: bridged with the default policy
+    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+    out = Output.concat([policy.imu(run.stamps_ns[keep], run.accel[keep], None,
+                                    _covariance(run, int(keep.sum()))), policy.flush()])
+    assert policy.counters['bridged'] > 0
+    d = policy.delay_samples
+    t_gap = run.stamps_ns[[19999, 20100]]
+    reach = d * 1e6 - 2e6  # D periods of 1 ms, less the stamp jitter
+    near = (out.stamps_ns > t_gap[0] - reach) & (out.stamps_ns < t_gap[1] + reach)
+    assert np.all(out.quality[near] >= Quality.DEGRADED)
+    far = (out.stamps_ns < t_gap[0] - (d + 2) * 1e6) & (out.quality != Quality.INVALID)
+    assert far.sum() > 1000 and np.all(out.quality[far] == Quality.VALID)
