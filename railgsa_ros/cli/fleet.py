@@ -1,0 +1,145 @@
+"""``railgsa fleet``: the track condition database (ingest on Dask, report, query).
+
+``ingest`` inverts each bag on a Dask cluster (a LocalCluster on 127.0.0.1 by default), aligns
+the passes of a line, fuses them and follows every defect over time in a DuckDB file;
+``report`` writes an HTML trend report; ``query`` lists the defects of a line between two
+km-posts as JSON or CSV (railgsa_ros.fleet, docs/fleet.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_SOME_FAILED = 1
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``fleet`` with its ``ingest``, ``report`` and ``query`` subcommands."""
+    p = subparsers.add_parser(
+        'fleet', help='track condition database: ingest passes on Dask, trend report, query',
+        description='Many passes of many trains in one DuckDB file: aligned, fused and trended.')
+    sub = p.add_subparsers(title='fleet commands', metavar='FLEET_COMMAND', required=True)
+
+    ing = sub.add_parser('ingest', help='invert bags on Dask and store them in the database',
+                         description='Invert each bag (one Dask task per bag), align it on its '
+                                     "line's chainage, store it, then refuse, re-detect and "
+                                     'trend the line. Exit 1 when some bag failed (the others '
+                                     'are stored), 2 on bad options.')
+    ing.add_argument('bags', nargs='+', metavar='BAG', help='rosbag2 bags (directory or file)')
+    ing.add_argument('--db', required=True, metavar='PATH', help='DuckDB file (created if new)')
+    ing.add_argument('--scheduler', metavar='ADDRESS',
+                     help='an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a '
+                          'LocalCluster on 127.0.0.1)')
+    ing.add_argument('--workers', type=int, default=2, metavar='N',
+                     help='LocalCluster worker processes, one thread each (default 2)')
+    ing.add_argument('--line', default='line', help='line id (default "line")')
+    ing.add_argument('--track', default='1', help='track id (default "1")')
+    ing.add_argument('--direction', choices=('up', 'down'), default='up',
+                     help='up: line chainage grows with odometry; down: it decreases')
+    ing.add_argument('--km-origin', type=float, default=0.0, metavar='KM',
+                     help="km-post of the odometry origin of a new line's first pass")
+    ing.add_argument('--vehicle-id', default='', metavar='NAME', help='vehicle name stored')
+    ing.add_argument('--params', metavar='FILE', help='ROS params file (as railgsa review)')
+    ing.add_argument('--vehicle', metavar='FILE', help='nominal vehicle YAML')
+    ing.add_argument('--method', choices=('spectral', 'feedback', 'kalman'))
+    ing.add_argument('--band', choices=('d1', 'd2'))
+    ing.add_argument('--imu-topic', default='/imu/data', metavar='T')
+    ing.add_argument('--odom-topic', default='/odom', metavar='T')
+    ing.set_defaults(func=run_ingest)
+
+    rep = sub.add_parser('report', help='HTML trend report of the database')
+    rep.add_argument('--db', required=True, metavar='PATH')
+    rep.add_argument('--out', required=True, metavar='DIR', help='report directory to create')
+    rep.add_argument('--overwrite', action='store_true', help='replace an existing DIR')
+    rep.set_defaults(func=run_report)
+
+    qry = sub.add_parser('query', help='defects of a line between two km-posts')
+    qry.add_argument('--db', required=True, metavar='PATH')
+    qry.add_argument('--line', required=True)
+    qry.add_argument('--track', help='only this track (default: all)')
+    qry.add_argument('--from-km', type=float, required=True, metavar='A')
+    qry.add_argument('--to-km', type=float, required=True, metavar='B')
+    fmt = qry.add_mutually_exclusive_group()
+    fmt.add_argument('--json', dest='format', action='store_const', const='json',
+                     help='JSON array (default)')
+    fmt.add_argument('--csv', dest='format', action='store_const', const='csv')
+    qry.set_defaults(func=run_query, format='json')
+
+
+def pass_options(args: argparse.Namespace) -> object:
+    """PassOptions from the command line (ConfigError naming the option or file)."""
+    from dataclasses import fields
+
+    from railgsa_ros.cli.review import parameters
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.fleet.passes import PassOptions
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.uncertainty import UncertaintyConfig
+    from railgsa_ros.vehicle import VehicleParams, load_vehicle
+
+    if args.workers < 1:
+        raise ConfigError(f'--workers: must be at least 1, got {args.workers}')
+    params = parameters(args)
+    known = {f.name for f in fields(UncertaintyConfig)} | {f.name for f in
+                                                          fields(InversionConfig)}
+    config = UncertaintyConfig.from_mapping({k: v for k, v in params.items() if k in known},
+                                            source=args.params or 'command line')
+    vehicle_file = args.vehicle or params.get('vehicle_file') or None
+    return PassOptions(config, load_vehicle(vehicle_file) if vehicle_file else VehicleParams(),
+                       args.line, args.track, args.direction, args.km_origin, args.vehicle_id,
+                       args.imu_topic, args.odom_topic)
+
+
+def run_ingest(args: argparse.Namespace) -> int:
+    """Ingest, printing one line per bag and a summary; exit 1 when a bag failed."""
+    from railgsa_ros.fleet import db
+    from railgsa_ros.fleet.ingest import ingest
+
+    options = pass_options(args)
+
+    def show(o: object) -> None:
+        label = f'pass {o.pass_id}' if o.pass_id is not None else '-'
+        print(f'{o.status:<9} {label:<8} {o.bag}: {o.message}', flush=True)
+
+    outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show)
+    for o in outcomes:
+        if o.status == 'skipped':
+            show(o)
+    con = db.connect(args.db, read_only=True)
+    try:
+        n_pass, n_def, n_new = con.execute(
+            "SELECT (SELECT count(*) FROM passes WHERE line = $l AND track = $t AND status = "
+            "'ok'), count(*), count(*) FILTER (WHERE new) FROM defects WHERE line = $l AND "
+            "track = $t", {'l': options.line, 't': options.track}).fetchone()
+    finally:
+        con.close()
+    bad = [o for o in outcomes if o.status in ('failed', 'unaligned')]
+    print(f'{args.db}: line {options.line} track {options.track}: {n_pass} passes, {n_def} '
+          f'defects ({n_new} new); this batch: {len(outcomes) - len(bad)} stored or skipped, '
+          f'{len(bad)} failed')
+    for o in bad:
+        print(f'  {o.status}: {o.bag}: {o.message}', file=sys.stderr)
+    return EXIT_SOME_FAILED if bad else 0
+
+
+def run_report(args: argparse.Namespace) -> int:
+    """Write the report and print its path."""
+    from railgsa_ros.fleet.report import write_report
+
+    print(write_report(args.db, args.out, args.overwrite))
+    return 0
+
+
+def run_query(args: argparse.Namespace) -> int:
+    """Print the defects between the km-posts as JSON or CSV."""
+    from railgsa_ros.fleet import db
+    from railgsa_ros.fleet.query import defects_between, to_csv, to_json
+
+    con = db.connect(args.db, read_only=True)
+    try:
+        rows = defects_between(con, args.line, args.from_km, args.to_km, args.track)
+    finally:
+        con.close()
+    sys.stdout.write(to_csv(rows) if args.format == 'csv' else to_json(rows) + '\n')
+    return 0

@@ -1,0 +1,176 @@
+"""A line's condition from its stored passes: scatter, fused profile, defects and their trends.
+
+Recomputed from the database after every batch (cheap next to the inversion): ``fuse`` gives
+each pass's scatter sigma_p and gain g_p and the fused profile; every pass is searched for
+defects (``defects.detect``); detections are matched into defects; each defect is then measured
+in every pass covering it, found there or not, so its depth series has no holes. The depth of
+pass p has the SD sqrt(sigma_p^2 + (s_g d)^2), s_g the RMS gain of the line's passes (a vehicle
+or speed that reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when an earlier
+pass covered its position and did not find it; its trend then starts at its first detection.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import duckdb
+import numpy as np
+
+from railgsa_ros.fleet import db
+from railgsa_ros.fleet.align import Alignment
+from railgsa_ros.fleet.defects import Peak, detect, match, measure
+from railgsa_ros.fleet.fuse import fuse_line, pass_scatter
+from railgsa_ros.fleet.trend import crossing, fit_trend
+from railgsa_ros.review.limits import LEVELS, Limits
+
+DAY_NS = 86400 * 10**9
+MAX_DAYS = 1e5  # projections beyond ~2240 are reported as none
+
+
+@dataclass(frozen=True)
+class LinePass:
+    """One 'ok' pass of a line: id, start stamp (ns), scatter (m), gain, alignment."""
+
+    pass_id: int
+    start_ns: int
+    noise_m: float
+    gain: float
+    alignment: Alignment
+
+
+def line_passes(con: duckdb.DuckDBPyConnection, line: str, track: str) -> list[LinePass]:
+    """The line's aligned passes in time order."""
+    rows = con.execute("""
+        SELECT p.pass_id, epoch_ns(p.start_time), p.noise_m, coalesce(p.gain, 'nan'),
+               a.offset_m, a.scale, a.offset_sd_m, a.scale_sd, a.cov_offset_scale, a.method
+        FROM passes p JOIN alignments a USING (pass_id)
+        WHERE p.line = ? AND p.track = ? AND p.status = 'ok' ORDER BY p.start_time, p.pass_id
+        """, [line, track]).fetchall()
+    out = []
+    for pid, start, noise, gain, off, scale, off_sd, scale_sd, cov, method in rows:
+        c = np.array([[off_sd ** 2, cov], [cov, scale_sd ** 2]])
+        out.append(LinePass(pid, int(start), float(noise), float(gain),
+                            Alignment(off, scale, c, method)))
+    return out
+
+
+def pass_profile(con: duckdb.DuckDBPyConnection, pass_id: int) -> dict[str, np.ndarray]:
+    """cell, u_m, valid, stamp_ns, speed_mps of one pass on its line grid, in cell order."""
+    return db.fetch(con, 'SELECT cell, u_m, valid, stamp_ns, speed_mps FROM profiles '
+                         'WHERE pass_id = ? ORDER BY cell', [pass_id])
+
+
+def _level(depth_m: float, limits_row: np.ndarray) -> tuple[str, str, float]:
+    """(level reached or '', next level or '', next limit (m) or NaN) of a depth."""
+    with np.errstate(invalid='ignore'):
+        passed = np.flatnonzero(depth_m > limits_row)
+    level = LEVELS[passed[-1]] if passed.size else ''
+    nxt = passed[-1] + 1 if passed.size else 0
+    if nxt >= len(LEVELS) or not np.isfinite(limits_row[nxt]):
+        return level, '', float('nan')
+    return level, LEVELS[nxt], float(limits_row[nxt])
+
+
+def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
+                limits: Limits) -> None:
+    """Recompute the line's scatter, fused profile, detections and defects (module docstring)."""
+    pass_scatter(con, line, track)
+    fuse_line(con, line, track)
+    passes = line_passes(con, line, track)
+    gains = np.array([p.gain for p in passes])
+    s_g = float(np.sqrt(np.mean(gains[np.isfinite(gains)] ** 2))) if np.isfinite(gains).any() \
+        else 0.0
+    found: list[tuple[int, Peak]] = []  # (pass index, peak) in time order
+    for i, p in enumerate(passes):
+        prof = pass_profile(con, p.pass_id)
+        found += [(i, pk) for pk in detect(prof['cell'], prof['u_m'], prof['valid'],
+                                           prof['speed_mps'], dx, limits)]
+    x_found = np.array([pk.x_m for _, pk in found])
+    sign_found = np.array([np.sign(pk.signed_m) for _, pk in found])
+    ids = match(x_found, sign_found)
+    n_def = int(ids.max()) + 1 if ids.size else 0
+    x_def = np.array([x_found[ids == d].mean() for d in range(n_def)])
+    sign_def = np.array([sign_found[ids == d][0] for d in range(n_def)])
+    detected = {(i, int(j)) for (i, _), j in zip(found, ids, strict=True)}
+    rows: dict[str, list] = {k: [] for k in ('pass', 'defect', 'x', 'x_sd', 'depth', 'depth_sd',
+                                             'signed', 'speed', 'stamp', 'detected')}
+    for i, p in enumerate(passes):
+        prof = pass_profile(con, p.pass_id)
+        for d in range(n_def):
+            pk = measure(prof['cell'], prof['u_m'], prof['valid'], dx, x_def[d], sign_def[d])
+            if pk is None:
+                continue
+            s = (pk.x_m - p.alignment.offset_m) / p.alignment.scale
+            for key, value in (('pass', p.pass_id), ('defect', d), ('x', pk.x_m),
+                               ('x_sd', float(p.alignment.position_sd(s))),
+                               ('depth', pk.depth_m),
+                               ('depth_sd', float(np.hypot(p.noise_m, s_g * pk.depth_m))),
+                               ('signed', pk.signed_m), ('speed', prof['speed_mps'][pk.index]),
+                               ('stamp', prof['stamp_ns'][pk.index]),
+                               ('detected', (i, d) in detected)):
+                rows[key].append(value)
+    _store(con, line, track, passes, rows, x_def, sign_def, limits)
+
+
+def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, passes: list[LinePass],
+           rows: dict[str, list], x_def: np.ndarray, sign_def: np.ndarray,
+           limits: Limits) -> None:
+    """Write the line's detections and defects (replacing the previous ones)."""
+    key = [line, track]
+    con.execute('DELETE FROM detections WHERE line = ? AND track = ?', key)
+    con.execute('DELETE FROM defects WHERE line = ? AND track = ?', key)
+    r = {k: np.asarray(v) for k, v in rows.items()}
+    if r['pass'].size == 0:
+        return
+    speed_kmh = np.abs(r['speed'].astype(float)) * 3.6
+    thresholds = limits.at(r['speed'])
+    levels = [_level(dep, row)[0] for dep, row in zip(r['depth'], thresholds, strict=True)]
+    db.insert_columns(con, 'detections', {
+        'pass_id': r['pass'].astype(np.int32), 'line': np.full(r['pass'].size, line),
+        'track': np.full(r['pass'].size, track), 'defect_id': r['defect'].astype(np.int32),
+        'x_m': r['x'], 'x_sd_m': r['x_sd'], 'depth_m': r['depth'], 'depth_sd_m': r['depth_sd'],
+        'signed_m': r['signed'], 'speed_kmh': speed_kmh,
+        'time': np.array([db.timestamp(t) for t in r['stamp']], dtype='datetime64[us]'),
+        'level': np.array(levels), 'detected': r['detected'].astype(bool)})
+    for d in range(x_def.size):
+        _store_defect(con, line, track, d, x_def[d], sign_def[d],
+                      {k: v[r['defect'] == d] for k, v in r.items()}, limits)
+
+
+def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int, x: float,
+                  sign: float, obs: dict[str, np.ndarray], limits: Limits) -> None:
+    """One defect's trend row from its observations (in time order)."""
+    found_at = np.flatnonzero(obs['detected'])
+    first = int(found_at[0])
+    new = first > 0  # an earlier pass covered it and did not find it
+    use = slice(first, None) if new else slice(None)
+    t_days = obs['stamp'][use].astype(float) / DAY_NS
+    trend = fit_trend(t_days, obs['depth'][use], obs['depth_sd'][use])
+    speed = float(np.max(np.abs(obs['speed'][use])))
+    now = float(t_days[-1])
+    depth, depth_sd = (float(obs['depth'][use][-1]), float(obs['depth_sd'][use][-1]))
+    rate = rate_se = float('nan')
+    dates = (None, None, None)
+    if trend is not None:
+        fitted, fitted_sd = trend.at(now)
+        depth, depth_sd = float(fitted), float(fitted_sd)
+        rate, rate_se = trend.rate_m_per_day, trend.rate_se
+    level, nxt, limit = _level(depth, limits.at(np.array([speed]))[0])
+    if trend is not None and np.isfinite(limit):
+        dates = tuple(_date(t) for t in crossing(trend, limit, now))
+    w = 1.0 / obs['x_sd'][use] ** 2 if np.all(obs['x_sd'][use] > 0) else None
+    x_sd = float(np.sqrt(1.0 / w.sum())) if w is not None else 0.0
+    per_year = 365.25e3  # m/day -> mm/year
+    con.execute('INSERT INTO defects VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, '
+                '?, ?, ?, ?, ?)',
+                [line, track, d, x, x / 1000.0, x_sd, int(sign),
+                 db.timestamp(obs['stamp'][first]), db.timestamp(obs['stamp'][-1]),
+                 int(t_days.size), new, depth, depth_sd, rate * per_year, rate_se * per_year,
+                 speed * 3.6, level, nxt, limit, *dates])
+
+
+def _date(t_days: float) -> object:
+    """A DATE for a time in days since the epoch; None when infinite, NaN or beyond MAX_DAYS."""
+    if not np.isfinite(t_days) or abs(t_days) > MAX_DAYS:
+        return None
+    return db.timestamp(t_days * DAY_NS).date()

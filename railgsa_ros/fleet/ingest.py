@@ -1,0 +1,176 @@
+"""A batch of bags into the database: workers invert (Dask), the client aligns and writes.
+
+Each bag is one Dask task (``passes.analyse_pass``, retried by Dask on a lost worker); the
+client takes the results in submission order (so the first bag of a new line defines its frame
+whatever finishes first), aligns each against its line's reference and writes it: DuckDB has one
+writer, the client. A task that raises is a failed pass: one line in the summary and in
+``passes.message``; the rest of the batch goes on. After the batch every touched line is
+recomputed (``condition.update_line``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import duckdb
+import numpy as np
+
+from railgsa_ros.fleet import db
+from railgsa_ros.fleet.align import Alignment, Reference, on_line_grid, origin, xcorr_align
+from railgsa_ros.fleet.condition import update_line
+from railgsa_ros.fleet.passes import PassFailure, PassOptions, PassResult, analyse_or_fail
+from railgsa_ros.review.limits import en13848_limits
+from railgsa_ros.review.sections import section_sd
+
+HOST = '127.0.0.1'  # a LocalCluster listens on loopback only
+RETRIES = 2  # Dask reruns a task whose worker died or that raised unexpectedly
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What happened to one bag: pass id (None when skipped), status and a one-line message."""
+
+    bag: str
+    pass_id: int | None
+    status: str
+    message: str
+
+
+@contextmanager
+def dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
+    """A distributed Client on ``scheduler``, or on a LocalCluster of ``workers`` processes with
+    one thread each, on 127.0.0.1, no dashboard."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    env = {'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host=HOST,
+                      dashboard_address=None, silence_logs=40, env=env) as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def _reference(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
+               ) -> Reference | None:
+    """The line's fused profile, else its reference pass; None for a new line."""
+    cols = db.fetch(con, 'SELECT cell, u_m FROM fused WHERE line = ? AND track = ? ORDER BY cell',
+                    [line, track])
+    valid = np.ones(cols['cell'].size, bool)
+    if cols['cell'].size == 0:
+        cols = db.fetch(con, """SELECT pr.cell, pr.u_m, pr.valid FROM profiles pr
+                                JOIN lines l ON pr.pass_id = l.reference_pass
+                                WHERE l.line = ? AND l.track = ? ORDER BY pr.cell""",
+                        [line, track])
+        if cols['cell'].size == 0:
+            return None
+        valid = cols['valid']
+    first = int(cols['cell'][0])
+    u = np.zeros(int(cols['cell'][-1]) - first + 1)
+    ok = np.zeros(u.size, bool)
+    u[cols['cell'] - first] = cols['u_m']
+    ok[cols['cell'] - first] = valid
+    return Reference(first, u, ok, dx)
+
+
+def _pass_row(con: duckdb.DuckDBPyConnection, bag: str, options: PassOptions, status: str,
+              message: str, result: PassResult | None = None,
+              alignment: Alignment | None = None) -> int:
+    """Insert the passes row; returns its id."""
+    pid = con.execute("SELECT nextval('pass_ids')").fetchone()[0]
+    o = options
+    values = [pid, bag, o.line, o.track, o.direction, None, None, o.vehicle_id, None, None, None,
+              None, None, None, None, None, None, None, status, message, datetime.now()]
+    if result is not None:
+        speed = np.abs(result.speed_mps)
+        values[5:16] = [db.timestamp(result.start_ns), db.timestamp(result.end_ns), o.vehicle_id,
+                        float(speed.min()), float(speed.mean()), float(speed.max()),
+                        result.samples, result.duration_s, result.rate_hz, result.cpu_s,
+                        abs(alignment.scale) if alignment is not None else None]
+    con.execute(f'INSERT INTO passes VALUES ({", ".join("?" * len(values))})', values)
+    return int(pid)
+
+
+def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult) -> Outcome:
+    """Align one pass against its line, write its rows; status 'ok' or 'unaligned'."""
+    o, dx = result.options, result.options.dx_m
+    ref = _reference(con, o.line, o.track, dx)
+    prior = origin(1000.0 * o.km_origin, o.direction)
+    alignment = prior if ref is None else xcorr_align(ref, result.s_m, result.u_m, result.valid,
+                                                      prior)
+    if alignment is None:
+        pid = _pass_row(con, result.bag, o, 'unaligned',
+                        "no stretch matches the line's profile (correlation below 0.6)", result)
+        return Outcome(result.bag, pid, 'unaligned', 'not aligned: no match with the line')
+    pid = _pass_row(con, result.bag, o, 'ok', '', result, alignment)
+    if ref is None:
+        con.execute('INSERT INTO lines VALUES (?, ?, ?, ?, ?)',
+                    [o.line, o.track, dx, o.config.inversion.band, pid])
+    cells, (u, stamps, speed), valid = on_line_grid(
+        result.s_m, (result.u_m, result.stamps_ns, result.speed_mps), result.valid, alignment, dx)
+    db.insert_columns(con, 'profiles', {
+        'pass_id': np.full(cells.size, pid, np.int32), 'cell': cells, 'u_m': u, 'valid': valid,
+        'stamp_ns': stamps.astype(np.int64), 'speed_mps': speed})
+    x = cells * dx
+    sd = alignment.position_sd(result.s_m)
+    con.execute('INSERT INTO alignments VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)',
+                [pid, alignment.method, alignment.offset_m, alignment.scale,
+                 alignment.offset_sd_m, alignment.scale_sd, float(alignment.cov[0, 1]),
+                 alignment.correlation, alignment.windows, float(x[0]), float(x[-1]),
+                 float(sd.max())])
+    sec = section_sd(x[valid], u[valid], speed[valid])
+    db.insert_columns(con, 'segments', {
+        'pass_id': np.full(len(sec), pid, np.int32), 'start_m': sec.start_m, 'sd_m': sec.sd_m,
+        'coverage': sec.coverage, 'speed_mps': sec.speed_mps})
+    return Outcome(result.bag, pid, 'ok', f'{alignment.method}, scale {alignment.scale:.5f}, '
+                                          f'+-{sd.max():.2f} m')
+
+
+def _one_line(exc: BaseException) -> str:
+    """Type and first line of an unexpected exception."""
+    text = str(exc).strip()
+    return f'{type(exc).__name__}: {text.splitlines()[0]}' if text else type(exc).__name__
+
+
+def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions,
+           scheduler: str | None = None, workers: int = 2,
+           report: Callable[[Outcome], None] | None = None) -> list[Outcome]:
+    """Ingest ``bags`` (module docstring); ``report(outcome)`` as each bag is done."""
+    con = db.connect(db_path)
+    try:
+        done = {row[0] for row in con.execute(
+            "SELECT bag FROM passes WHERE status = 'ok'").fetchall()}
+        names = [str(Path(b).resolve()) for b in bags]
+        outcomes = [Outcome(b, None, 'skipped', 'already in the database')
+                    for b in names if b in done]
+        todo = [b for b in dict.fromkeys(names) if b not in done]
+        with dask_client(scheduler, workers) as client:
+            futures = client.map(analyse_or_fail, todo, options=options, pure=False,
+                                 retries=RETRIES)
+            for bag, future in zip(todo, futures, strict=True):
+                try:
+                    result = future.result()
+                except Exception as exc:  # failed after Dask's retries: recorded, batch goes on
+                    result = PassFailure(bag, _one_line(exc))
+                if isinstance(result, PassFailure):
+                    pid = _pass_row(con, bag, options, 'failed', result.message)
+                    outcome = Outcome(bag, pid, 'failed', result.message)
+                else:
+                    con.begin()
+                    outcome = store_pass(con, result)
+                    con.commit()
+                future.release()
+                outcomes.append(outcome)
+                if report is not None:
+                    report(outcome)
+        update_line(con, options.line, options.track, options.dx_m,
+                    en13848_limits(options.config.inversion.band))
+    finally:
+        con.close()
+    return outcomes

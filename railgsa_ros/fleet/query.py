@@ -1,0 +1,51 @@
+"""Read the condition database back: the defects of a line between two km-posts, as rows."""
+
+from __future__ import annotations
+
+import csv
+from datetime import date, datetime
+import io
+import json
+import math
+
+import duckdb
+
+COLUMNS = ('line', 'track', 'defect_id', 'km', 'x_sd_m', 'sign', 'depth_m', 'depth_sd_m',
+           'rate_mm_per_year', 'rate_se_mm_per_year', 'speed_kmh', 'level', 'next_level',
+           'next_limit_m', 'projected', 'projected_early', 'projected_late', 'new',
+           'first_seen', 'last_seen', 'passes')
+
+
+def defects_between(con: duckdb.DuckDBPyConnection, line: str, from_km: float, to_km: float,
+                    track: str | None = None) -> list[dict]:
+    """The followed defects of ``line`` (and ``track`` if given) with from_km <= km <= to_km,
+    in km order: one dict per defect with COLUMNS."""
+    lo, hi = sorted((from_km, to_km))
+    sql = (f'SELECT {", ".join(COLUMNS)} FROM defects WHERE line = ? AND km BETWEEN ? AND ?'
+           + (' AND track = ?' if track is not None else '') + ' ORDER BY km, track')
+    params = [line, lo, hi] + ([track] if track is not None else [])
+    return [dict(zip(COLUMNS, row, strict=True)) for row in con.execute(sql, params).fetchall()]
+
+
+def _plain(value: object) -> object:
+    """JSON/CSV value: ISO dates, None for NaN."""
+    if isinstance(value, (date, datetime)):
+        return value.isoformat()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def to_json(rows: list[dict]) -> str:
+    """Rows as a JSON array."""
+    return json.dumps([{k: _plain(v) for k, v in r.items()} for r in rows], indent=1)
+
+
+def to_csv(rows: list[dict]) -> str:
+    """Rows as CSV with a header (empty fields for missing values)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator='\n')
+    writer.writerow(COLUMNS)
+    for r in rows:
+        writer.writerow(['' if _plain(r[c]) is None else _plain(r[c]) for c in COLUMNS])
+    return out.getvalue()

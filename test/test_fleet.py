@@ -1,0 +1,175 @@
+"""railgsa fleet end to end on simulated passes over one line, against the simulation's truth.
+
+Five passes over the same 2.5 km German-low line, 30 days apart, at 23-30 m/s and 200 Hz, from
+different start positions, with different vehicles (parameters within a few %) and odometry
+scale errors of a few tenths of a percent; a dip that deepens by 0.04 mm/day and a second one
+that appears from the fourth pass on; plus one corrupt bag. Ingested by ``railgsa fleet ingest``
+on a 2-worker LocalCluster (127.0.0.1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import json
+
+import numpy as np
+import pytest
+
+from railgsa_ros.bag import write_run
+from railgsa_ros.cli.main import main
+from railgsa_ros.fleet import db
+from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.scenario import DEFAULT_START_NS, run_scenario
+from railgsa_ros.track import german_psd, save_csv, synthesize
+from railgsa_ros.vehicle import VehicleParams
+
+DAY_NS = 86400 * 10**9
+DAYS = np.array([0, 30, 60, 90, 120])
+STARTS = [50.0, 120.0, 0.0, 200.0, 30.0]  # true line position of each pass's first sample, m
+SPEEDS = [25.0, 28.0, 23.5, 30.0, 26.0]  # m/s
+ODO_ERR = [0.002, 0.004, -0.003, 0.0, -0.004]  # odometry reads (1 + e) x the true speed
+GROW_AT, GROW_D0, GROW_RATE = 600.0, 6e-3, 4e-5  # dip start (m), depth (m), m/day
+NEW_AT, NEW_DEPTH, NEW_FROM = 900.0, 7e-3, 3  # appears from pass index 3
+DIP_M = 8.0
+
+
+@dataclass
+class Series:
+    bags: list
+    broken: object
+    truth_depth: dict  # defect name -> (days, band-filtered truth depth (m)) per pass
+    truth_x: dict  # defect name -> true position of the band-filtered peak (m, line)
+
+
+def _truth_peak(run, centre):
+    """(position, depth) of the D1-filtered truth's deepest point within +-6 m of centre."""
+    x = np.arange(run.chainage_m[0], run.chainage_m[-1], 0.05)
+    band = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), 0.05, 'd1')
+    near = np.abs(x - centre) < 6
+    k = np.argmin(band[near])
+    return x[near][k], -band[near][k]
+
+
+@pytest.fixture(scope='module')
+def series(tmp_path_factory):
+    root = tmp_path_factory.mktemp('fleet')
+    x, u = synthesize(lambda w: german_psd(w, 'low'), 2500.0, 0.05, seed=5)
+    rng = np.random.default_rng(17)
+    bags, depth, pos = [], {'grow': [], 'new': []}, {'grow': [], 'new': []}
+    for i, day in enumerate(DAYS):
+        keep = x >= STARTS[i]
+        save_csv(root / f'line{i}.csv', x[keep], u[keep])
+        defects = f'dip@{GROW_AT}:len={DIP_M}:depth={GROW_D0 + GROW_RATE * day}'
+        if i >= NEW_FROM:
+            defects += f',dip@{NEW_AT}:len=6:depth={NEW_DEPTH}'
+        theta = VehicleParams().as_array() * (1 + 0.03 * rng.standard_normal(5))
+        run = run_scenario(f'file:{root}/line{i}.csv', SPEEDS[i], 45.0, 200.0, 'adxl355', seed=i,
+                           defects=defects, vehicle=VehicleParams(*theta),
+                           start_ns=DEFAULT_START_NS + day * DAY_NS)
+        for name, centre in (('grow', GROW_AT + DIP_M / 2), ('new', NEW_AT + 3)):
+            px, pd = _truth_peak(run, centre)
+            depth[name].append(pd)
+            if name == 'grow' or i >= NEW_FROM:
+                pos[name].append(px)
+        odometry = replace(run, speed_mps=run.speed_mps * (1 + ODO_ERR[i]))  # wheel diameter
+        bags.append(write_run(root / f'pass{i}.mcap', odometry))
+    broken = root / 'broken.mcap'
+    broken.write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 8)
+    return Series(bags, broken, {k: (DAYS, np.array(v)) for k, v in depth.items()},
+                  {k: float(np.mean(v)) for k, v in pos.items()})
+
+
+@pytest.fixture(scope='module')
+def ingested(series, tmp_path_factory):
+    path = tmp_path_factory.mktemp('db') / 'fleet.duckdb'
+    bags = [str(b) for b in series.bags[:2]] + [str(series.broken)] + \
+        [str(b) for b in series.bags[2:]]
+    code = main(['fleet', 'ingest', *bags, '--db', str(path), '--workers', '2',
+                 '--line', 'L1', '--track', '1'])
+    return code, path
+
+
+def _frame(x_true):
+    """A true line position in the frame of the line's first pass (its odometry from its start)."""
+    return (x_true - STARTS[0]) * (1 + ODO_ERR[0])
+
+
+def test_failing_bag_is_reported_and_the_rest_ingested(ingested, series, capsys):
+    code, path = ingested
+    assert code == 1  # some bag failed
+    con = db.connect(path, read_only=True)
+    rows = con.execute('SELECT bag, status, message FROM passes ORDER BY pass_id').fetchall()
+    assert [r[1] for r in rows].count('ok') == 5
+    failed = [r for r in rows if r[1] == 'failed']
+    assert len(failed) == 1 and failed[0][0].endswith('broken.mcap') and failed[0][2]
+    assert '\n' not in failed[0][2]
+
+
+def test_alignment_recovers_each_pass_frame(ingested):
+    """Each pass's odometry is mapped onto the first pass's frame: scale and offset as simulated.
+    The offset also carries each vehicle's own phase shift of the reconstruction (parameters a few
+    % off the nominal ones move D1 features by about 0.1 m), which no single pass can measure:
+    hence the 0.25 m floor."""
+    _, path = ingested
+    con = db.connect(path, read_only=True)
+    rows = con.execute("""SELECT a.offset_m, a.scale, a.offset_sd_m, a.scale_sd FROM alignments a
+                          JOIN passes p USING (pass_id) WHERE p.status = 'ok'
+                          ORDER BY p.start_time""").fetchall()
+    for i, (offset, scale, offset_sd, scale_sd) in enumerate(rows):
+        true_scale = (1 + ODO_ERR[0]) / (1 + ODO_ERR[i])
+        assert abs(scale - true_scale) < max(4 * scale_sd, 2e-5), i
+        assert abs(offset - _frame(STARTS[i])) < max(4 * offset_sd, 0.25), i
+
+
+def test_growing_defect_and_its_rate(ingested, series):
+    _, path = ingested
+    con = db.connect(path, read_only=True)
+    rows = con.execute('SELECT x_m, passes, new, rate_mm_per_year, rate_se_mm_per_year, '
+                       'depth_m, depth_sd_m FROM defects WHERE abs(x_m - ?) < 3',
+                       [_frame(series.truth_x['grow'])]).fetchall()
+    assert len(rows) == 1
+    x_m, passes, new, rate, se, depth, depth_sd = rows[0]
+    assert passes == 5 and not new
+    days, truth = series.truth_depth['grow']
+    truth_rate = np.polyfit(days, truth, 1)[0] * 365.25e3  # mm/year
+    assert abs(rate - truth_rate) < 3 * se
+    assert se < 0.25 * truth_rate  # the stated uncertainty says something
+    assert abs(x_m - _frame(series.truth_x['grow'])) < 0.5
+    assert abs(depth - truth[-1]) < 3 * depth_sd
+
+
+def test_new_defect_is_flagged(ingested, series):
+    _, path = ingested
+    con = db.connect(path, read_only=True)
+    rows = con.execute('SELECT x_m, first_seen FROM defects WHERE new').fetchall()
+    assert len(rows) == 1
+    x_m, first_seen = rows[0]
+    assert abs(x_m - _frame(series.truth_x['new'])) < 0.5
+    assert first_seen.date() == db.timestamp(DEFAULT_START_NS + DAYS[NEW_FROM] * DAY_NS).date()
+
+
+def test_query_lists_the_defects_between_km(ingested, series, capsys):
+    _, path = ingested
+    capsys.readouterr()
+    a = _frame(series.truth_x['grow']) / 1000 - 0.01
+    assert main(['fleet', 'query', '--db', str(path), '--line', 'L1', '--from-km', str(a),
+                 '--to-km', str(a + 0.02), '--json']) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert len(found) == 1 and found[0]['passes'] == 5
+    assert main(['fleet', 'query', '--db', str(path), '--line', 'L1', '--from-km', '0',
+                 '--to-km', '3', '--csv']) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith('line,track,defect_id,km') and len(lines) >= 3
+    assert main(['fleet', 'query', '--db', str(path), '--line', 'nope', '--from-km', '0',
+                 '--to-km', '3', '--json']) == 0
+    assert json.loads(capsys.readouterr().out) == []
+
+
+def test_report_writes_html_with_figures(ingested, tmp_path):
+    _, path = ingested
+    out = tmp_path / 'report'
+    assert main(['fleet', 'report', '--db', str(path), '--out', str(out)]) == 0
+    html = (out / 'report.html').read_text()
+    for png in ('fused_L1_1.png', 'trends_L1_1.png'):
+        assert (out / png).stat().st_size > 5000 and png in html
+    assert 'NEW' in html and 'broken.mcap' in html
