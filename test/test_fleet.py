@@ -173,3 +173,27 @@ def test_report_writes_html_with_figures(ingested, tmp_path):
     for png in ('fused_L1_1.png', 'trends_L1_1.png'):
         assert (out / png).stat().st_size > 5000 and png in html
     assert 'NEW' in html and 'broken.mcap' in html
+
+
+def test_a_stored_bag_is_skipped(ingested, series, capsys):
+    _, path = ingested
+    capsys.readouterr()
+    assert main(['fleet', 'ingest', str(series.bags[0]), '--db', str(path), '--line', 'L1']) == 0
+    assert 'skipped' in capsys.readouterr().out
+    con = db.connect(path, read_only=True)
+    assert con.execute('SELECT count(*) FROM passes').fetchone()[0] == 6
+
+
+def test_missing_or_busy_database_is_one_line_exit_2(ingested, tmp_path, capsys):
+    _, path = ingested
+    args = ['--line', 'L1', '--from-km', '0', '--to-km', '1']
+    assert main(['fleet', 'query', '--db', str(tmp_path / 'none.duckdb'), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('error: ') and err.count('\n') == 1
+    writer = db.connect(path)  # holds the database open for writing
+    try:
+        assert main(['fleet', 'query', '--db', str(path), *args]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith('error: ') and err.count('\n') == 1
+    finally:
+        writer.close()

@@ -150,6 +150,8 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
         outcomes = [Outcome(b, None, 'skipped', 'already in the database')
                     for b in names if b in done]
         todo = [b for b in dict.fromkeys(names) if b not in done]
+        if not todo:
+            return outcomes
         with dask_client(scheduler, workers) as client:
             futures = client.map(analyse_or_fail, todo, options=options, pure=False,
                                  retries=RETRIES)
