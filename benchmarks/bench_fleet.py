@@ -6,8 +6,9 @@ batch is ingested into a fresh database on a LocalCluster of 1 and of 2 worker p
 thread each, 127.0.0.1). Printed per run: the cluster's start-up (timed apart: paid once per
 batch), wall time, speed-up against the 1-worker run of the same invocation, CPU seconds in the
 workers (``PassResult.cpu_s``: reading, inversion, gridding) and in the client (alignment,
-DuckDB writes, fusion and trends: this process's CPU time), real-time factor, and CPU seconds per hour of 1 kHz data (bag-hour). The machine is
-shared: the load average is printed next to the numbers.
+DuckDB writes, fusion and trends: this process's CPU time), real-time factor and CPU seconds
+per hour of 1 kHz data (bag-hour). The machine is shared: the load average is printed next to
+the numbers.
 
 Usage: python benchmarks/bench_fleet.py [--bags 8] [--minutes 10] [--workers 1 2]
 """
