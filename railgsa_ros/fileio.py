@@ -1,8 +1,9 @@
-"""Atomic output: write to a temporary sibling, rename into place only when everything worked."""
+"""Safe output: never onto an input, atomic (a temporary sibling renamed into place only when
+everything worked), and writable directories checked before the work starts."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 import os
 from pathlib import Path
@@ -10,6 +11,35 @@ import shutil
 import tempfile
 
 from railgsa_ros.errors import ConfigError
+
+
+def refuse_overlap(output: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """ConfigError when ``output`` is an input, lies inside an input (a bag directory) or
+    contains one (a directory that writing, or ``--overwrite``, would replace), whether or not
+    either exists yet. Paths are compared resolved (symlinks, ``..``, relative paths)."""
+    out = Path(os.path.realpath(output))
+    for given in inputs:
+        if given is None or str(given) == '':
+            continue
+        source = Path(os.path.realpath(given))
+        if out == source or source in out.parents or out in source.parents:
+            relation = 'is' if out == source else 'is inside' if source in out.parents \
+                else 'contains'
+            raise ConfigError(f'{output}: the output {relation} the input {given} (choose '
+                              'another output path)')
+
+
+def writable_dir(path: str | Path) -> Path:
+    """Create directory ``path`` if needed and check that files can be created in it (a
+    read-only file system, missing permissions); ConfigError naming it otherwise."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot write ({exc.strerror or exc})') from None
+    return path
 
 
 @contextmanager

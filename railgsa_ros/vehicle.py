@@ -22,6 +22,11 @@ from railgsa_ros.errors import ConfigError
 
 PARAM_NAMES = ('m_s', 'm_us', 'k_s', 'k_us', 'c')
 PARAM_UNITS = {'m_s': 'kg', 'm_us': 'kg', 'k_s': 'N/m', 'k_us': 'N/m', 'c': 'N*s/m'}
+#: Physical range of each parameter of one quarter of a rail vehicle (inclusive; Table 1 lies
+#: well inside): the same bounds in every entry point (vehicle files, node parameters, ``gsa``).
+#: Values outside (1e300 kg) are typing errors, and they overflow the filters to NaN.
+PARAM_BOUNDS = {'m_s': (100.0, 1e5), 'm_us': (10.0, 1e4), 'k_s': (1e4, 1e8),
+                'k_us': (1e6, 1e10), 'c': (1e2, 1e7)}
 
 
 def _coerce_number(value: Any) -> Any:
@@ -36,7 +41,8 @@ def _coerce_number(value: Any) -> Any:
 
 @dataclass(frozen=True)
 class VehicleParams:
-    """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1."""
+    """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1. Each must lie
+    in ``PARAM_BOUNDS`` (ConfigError naming the field otherwise)."""
 
     m_s: float = 9875.0
     m_us: float = 1100.0
@@ -57,6 +63,11 @@ class VehicleParams:
             if not math.isfinite(number) or number <= 0:
                 raise ConfigError(f'vehicle.{f.name}: must be a positive finite number in '
                                   f'{PARAM_UNITS[f.name]}, got {number!r}')
+            low, high = PARAM_BOUNDS[f.name]
+            if not low <= number <= high:
+                unit = PARAM_UNITS[f.name]
+                raise ConfigError(f'vehicle.{f.name}: {number:g} {unit} is outside the physical '
+                                  f'range [{low:g}, {high:g}] {unit}')
             object.__setattr__(self, f.name, number)
 
     def as_array(self) -> np.ndarray:

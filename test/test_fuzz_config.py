@@ -31,7 +31,7 @@ from railgsa_ros.uncertainty import config as uncertainty_config
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.uq.uncertainty_file import load_uncertainty
-from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, load_vehicle
+from railgsa_ros.vehicle import PARAM_BOUNDS, PARAM_NAMES, VehicleParams, load_vehicle
 
 FUZZ = settings(max_examples=120, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture,
@@ -144,7 +144,8 @@ def test_load_vehicle_matches_the_oracle(path: Path, doc: Any) -> None:
         assert isinstance(result, ConfigError) or isinstance(doc, (str, bytes))
         return
     want = {n: positive_number(section[n]) for n in PARAM_NAMES}
-    bad = [n for n in PARAM_NAMES if want[n] is None]
+    bad = [n for n in PARAM_NAMES if want[n] is None or
+           not PARAM_BOUNDS[n][0] <= want[n] <= PARAM_BOUNDS[n][1]]
     if bad:
         assert isinstance(result, ConfigError) and f'vehicle.{bad[0]}:' in str(result)
     else:

@@ -92,8 +92,10 @@ def plot_bode(params: object, out: str | Path, fmin: float = 0.1, fmax: float = 
 
 def run(args: argparse.Namespace) -> int:
     """Draw the diagram, then print the mode table."""
+    from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
+    refuse_overlap(args.out, (args.vehicle,))
     params = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
     out = plot_bode(params, args.out, args.fmin, args.fmax)
     print(mode_table(params))

@@ -36,12 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the analysis and print text or JSON."""
     import json
-    from pathlib import Path
     import warnings
 
     import numpy as np
 
     from railgsa_ros.errors import ConfigError
+    from railgsa_ros.fileio import atomic_output, refuse_overlap, writable_dir
     from railgsa_ros.uq import AliasingWarning, analyze, validate
     from railgsa_ros.uq.scenarios import make_scenario
     from railgsa_ros.uq.uncertainty_file import load_uncertainty
@@ -49,6 +49,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.order < 1:
         raise ConfigError(f'--order: expected an integer >= 1, got {args.order}')
+    if args.validate is not None and args.validate < 2:
+        raise ConfigError(f'--validate: expected a number of base samples >= 2, got '
+                          f'{args.validate}')
+    if args.seed < 0:
+        raise ConfigError(f'--seed: expected an integer >= 0, got {args.seed}')
+    folder = None
+    if args.plot:  # before the analysis: a read-only or missing place fails at once
+        refuse_overlap(args.plot, (args.vehicle, args.uncertainty, args.profile[5:]
+                                   if args.profile.startswith('file:') else None))
+        folder = writable_dir(args.plot)
     vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
     dists = load_uncertainty(args.uncertainty) if args.uncertainty else None
     if dists is None:
@@ -74,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         'n_evaluations': result.n_evaluations, 'rule': args.rule, 'order': args.order,
         'fit': result.fit, 'notes': notes,
     }
-    if args.validate:
+    if args.validate is not None:
         check = validate(scenario, list(dists.values()), n_base=args.validate, seed=args.seed,
                          result=result)
         out['validation'] = {'n_evaluations': check.monte_carlo.n_evaluations,
@@ -82,13 +92,13 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from railgsa_ros.uq.plots import plot_histogram, plot_sensitivities
 
-        folder = Path(args.plot)
-        folder.mkdir(parents=True, exist_ok=True)
         label = {'inverse': 'reconstructed irregularity', 'forward': 'car-body acceleration'}
-        plot_histogram(result, folder / 'histogram.png',
-                       f'{label[args.scenario]} at t = {args.time:g} s [{scenario.unit}]')
-        plot_sensitivities(result, names, folder / 'sensitivity.png',
-                           f'{args.scenario} simulation, t = {args.time:g} s')
+        with atomic_output(folder / 'histogram.png', overwrite=True) as tmp:  # disk full: 1 line
+            plot_histogram(result, tmp,
+                           f'{label[args.scenario]} at t = {args.time:g} s [{scenario.unit}]')
+        with atomic_output(folder / 'sensitivity.png', overwrite=True) as tmp:
+            plot_sensitivities(result, names, tmp,
+                               f'{args.scenario} simulation, t = {args.time:g} s')
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
@@ -102,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
               f'{result.delta[i]:10.4f}')
     for note in notes:
         print(f'note: {note}')
-    if args.validate:
+    if args.validate is not None:
         v = out['validation']
         errs = ', '.join(f'{k} {e:.4f}' for k, e in v['errors'].items())
         print(f'brute force: {v["n_evaluations"]} runs ({v["cost_ratio"]:.0f}x); errors {errs}')

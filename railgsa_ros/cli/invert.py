@@ -61,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def build_config(args: argparse.Namespace, rate_hz: float) -> object:
     """Params file (if any), then the command-line choices; rate_hz from the bag unless set."""
-    from railgsa_ros.cli.params import read_params
+    from railgsa_ros.cli._params import read_params
     from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
 
     known = set(InversionConfig.__dataclass_fields__)
@@ -140,7 +140,7 @@ def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
     """uncertainty_node's band for the same samples; its stamps equal the pipeline output's."""
     import numpy as np
 
-    from railgsa_ros.cli.params import read_params
+    from railgsa_ros.cli._params import read_params
     from railgsa_ros.errors import InputError
     from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
     from railgsa_ros.uq.uncertainty_file import load_uncertainty
@@ -205,6 +205,10 @@ def write_bag(path: str | Path, out: object, band: object | None, overwrite: boo
 
 def run(args: argparse.Namespace) -> int:
     """Invert the bag and write the result; prints a one-line summary to stderr."""
+    from railgsa_ros.fileio import refuse_overlap
+
+    refuse_overlap(args.csv or args.out, (args.bag, args.params, args.vehicle, args.uncertainty,
+                                          args.uncertainty_params))
     out, pipe, inp = invert_bag(args)
     band = bands_for(args, inp, out) if args.bands else None
     if args.csv:

@@ -58,7 +58,7 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
     """Params-file values (irregularity_node, then uncertainty_node on top), then the options."""
     from dataclasses import fields
 
-    from railgsa_ros.cli.params import read_params
+    from railgsa_ros.cli._params import read_params
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.uncertainty import UncertaintyConfig
 
@@ -103,9 +103,12 @@ def build_options(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Build the review, write the report, print where it is and the headline numbers."""
+    from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.review.build import build_review, write_review
     from railgsa_ros.review.exceedances import describe_counts
     from railgsa_ros.review.progress import Progress
+
+    refuse_overlap(args.out, (args.bag, args.truth, args.params, args.vehicle, args.uncertainty))
 
     options = build_options(args)
     bar = Progress(1000, 'review', enabled=args.progress)

@@ -79,6 +79,7 @@ def simulate_bag(out: str | Path, profile: str = 'german-low', speed: float | No
     """
     from railgsa_ros.bag import write_run
     from railgsa_ros.errors import ConfigError
+    from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.scenario import run_scenario
     from railgsa_ros.speed_profile import parse_speed_profile
 
@@ -93,6 +94,7 @@ def simulate_bag(out: str | Path, profile: str = 'german-low', speed: float | No
         raise ConfigError(f'--start-time: must be in [0, 2^31) s, got {start_time:g}')
     if compression is None:
         compression = 'zstd' if storage == 'mcap' else 'none'
+    refuse_overlap(out, (profile[5:] if profile.startswith('file:') else None, vehicle))
     if Path(out).exists() and not overwrite:
         raise ConfigError(f'{out}: already exists (choose another output path or --overwrite)')
     result = run_scenario(profile, velocity, duration, rate, sensor, seed, defects=defects,

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
+from railgsa_ros.errors import ConfigError
 from railgsa_ros.lti import DiscreteSystem, StateSpaceBank
 from railgsa_ros.vehicle import state_space
 
@@ -68,8 +69,13 @@ class KalmanDesign:
         self.speed, self.dt = float(speed_mps), dt
         phi, q, c = augmented_model(theta, speed_mps, av, bias_walk, dt)
         r = np.array([[noise_var]])
-        prior = np.stack([solve_discrete_are(ph.T, cc.T, qq, r)
-                          for ph, cc, qq in zip(phi, c, q, strict=True)])
+        try:
+            prior = np.stack([solve_discrete_are(ph.T, cc.T, qq, r)
+                              for ph, cc, qq in zip(phi, c, q, strict=True)])
+        except (np.linalg.LinAlgError, ValueError) as exc:  # an extreme vehicle: one line
+            reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+            raise ConfigError(f'method kalman: no steady-state filter for this vehicle at '
+                              f'{speed_mps:g} m/s ({reason}); use method spectral') from None
         s = c @ prior @ np.swapaxes(c, 1, 2) + r  # (P,1,1)
         gain = prior @ np.swapaxes(c, 1, 2) / s  # (P,6,1)
         eye = np.eye(N_STATE)

@@ -1,7 +1,8 @@
 """Parameter specs shared by irregularity_node and uncertainty_node (same names and defaults).
 
 - INVERSION_SPECS: one per InversionConfig field (defaults = config/irregularity.yaml).
-- VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults.
+- VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults and the physical
+  bounds of ``vehicle.PARAM_BOUNDS`` (the same in vehicle files and the CLI).
 - NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, input QoS,
   stuck sensor and backward time limits).
 """
@@ -15,10 +16,14 @@ from typing import Any
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.nodes.params import ParamSpec
 from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
-from railgsa_ros.vehicle import PARAM_NAMES, PARAM_UNITS, VehicleParams, load_vehicle
+from railgsa_ros.vehicle import (
+    PARAM_BOUNDS,
+    PARAM_NAMES,
+    PARAM_UNITS,
+    VehicleParams,
+    load_vehicle,
+)
 
-_VEHICLE_BOUNDS = {'m_s': (100.0, 1e5), 'm_us': (10.0, 1e4), 'k_s': (1e4, 1e8),
-                   'k_us': (1e6, 1e10), 'c': (1e2, 1e7)}
 _VEHICLE_DOCS = {'m_s': 'sprung (car-body) mass', 'm_us': 'unsprung (wheelset) mass',
                  'k_s': 'suspension stiffness', 'k_us': 'wheel-rail contact stiffness',
                  'c': 'suspension damping'}
@@ -26,7 +31,7 @@ _VEHICLE_DOCS = {'m_s': 'sprung (car-body) mass', 'm_us': 'unsprung (wheelset) m
 INVERSION_SPECS = tuple(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'],
                                   f.metadata['choices']) for f in fields(InversionConfig))
 VEHICLE_SPECS = tuple(ParamSpec(n, getattr(VehicleParams(), n),
-                                f'{_VEHICLE_DOCS[n]}, {PARAM_UNITS[n]}', _VEHICLE_BOUNDS[n])
+                                f'{_VEHICLE_DOCS[n]}, {PARAM_UNITS[n]}', PARAM_BOUNDS[n])
                       for n in PARAM_NAMES)
 NODE_SPECS = (
     ParamSpec('vehicle_file', '', 'YAML file with a "vehicle:" section; when set, its values '

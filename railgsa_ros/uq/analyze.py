@@ -32,6 +32,9 @@ from railgsa_ros.uq.rules import exact_degree, make_rule
 FITS = ('auto', 'projection', 'ols', 'omp')
 DELTAS = (True, False, 'surrogate', 'pem5')
 OVERSAMPLING = 2  # regression points per PCE term when PEM nodes must be augmented
+#: highest total PCE order: order 10 in 5 inputs is already 3003 terms (6006 model runs); 40
+#: would not finish
+MAX_ORDER = 10
 _DELTA_VALUES = 2 ** 24  # surrogate outputs held at once by the delta double loop
 
 Model = Callable[[np.ndarray], np.ndarray]
@@ -125,6 +128,12 @@ def _design(rule: str, n: int, order: int, fit: str, size: int | None, seed: int
     return xi, np.full(len(xi), 1.0 / len(xi)), fit
 
 
+def check_seed(seed: int | None) -> None:
+    """ConfigError unless ``seed`` is None or an integer >= 0 (numpy's seeds)."""
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+        raise ConfigError(f'seed: expected an integer >= 0, got {seed!r}')
+
+
 def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: str = 'pem5',
             delta: bool | str = True, n_mc: int = 100_000, seed: int | None = 0,
             fit: str = 'auto', size: int | None = None, delta_samples: int = 400_000,
@@ -145,8 +154,9 @@ def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: s
         raise ConfigError(f'fit: unknown fit {fit!r}; expected one of {", ".join(FITS)}')
     if delta not in DELTAS:
         raise ConfigError(f'delta: expected True, False, "surrogate" or "pem5", got {delta!r}')
-    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-        raise ConfigError(f'order: expected an integer >= 1, got {order!r}')
+    if isinstance(order, bool) or not isinstance(order, int) or not 1 <= order <= MAX_ORDER:
+        raise ConfigError(f'order: expected an integer in [1, {MAX_ORDER}], got {order!r}')
+    check_seed(seed)
     if delta == 'pem5' and germ != 'hermite':
         raise ConfigError('delta: the conditional PEM5 design needs germ hermite')
     n = len(dists)

@@ -19,11 +19,15 @@ from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.feedback import FeedbackInverse
 from railgsa_ros.simulate import simulate
 from railgsa_ros.track import make_profile
+from railgsa_ros.uq.analyze import check_seed
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
 KINDS = ('inverse', 'forward')
 CHUNK = 256  # parameter sets per bank
+#: longest scenario, simulation samples: a bank of CHUNK series of this length is 0.5 GB
+#: (120 s at the default 2000 Hz; the paper reads t = 7 s)
+MAX_SAMPLES = 240_000
 
 
 def sample_indices(times: Sequence[float], dt: float) -> np.ndarray:
@@ -93,6 +97,10 @@ def make_scenario(kind: str, times: float | Sequence[float],
     dt = 1.0 / rate_hz
     times = np.asarray(times, dtype=float)
     last = int(sample_indices(times, dt).max())
+    if last > MAX_SAMPLES:
+        raise ConfigError(f'time: {float(np.max(times)):g} s is beyond the longest scenario '
+                          f'({MAX_SAMPLES * dt:g} s at {rate_hz:g} Hz)')
+    check_seed(seed)
     _, u = make_profile(profile, speed_mps * dt * last, speed_mps * dt, seed)
     u = u[:last + 1]
     a_meas = simulate(u, dt, vehicle)[0]

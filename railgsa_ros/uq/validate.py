@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from railgsa_ros.uq.analyze import Model, Result, analyze, evaluate
+from railgsa_ros.errors import ConfigError
+from railgsa_ros.uq.analyze import Model, Result, analyze, check_seed, evaluate
 from railgsa_ros.uq.delta import delta_given_data
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.uq.germ import sobol
@@ -72,7 +73,11 @@ def monte_carlo_indices(model: Model, dists: Sequence[Distribution], n_base: int
 def validate(model: Model, dists: Sequence[Distribution], n_base: int = 4096,
              seed: int | None = 0, result: Result | None = None,
              **analyze_kwargs: Any) -> Validation:
-    """Compare ``analyze`` (run here unless ``result`` is given) with brute force."""
+    """Compare ``analyze`` (run here unless ``result`` is given) with brute force
+    (``n_base`` >= 2, ConfigError otherwise)."""
+    if isinstance(n_base, bool) or not isinstance(n_base, int) or n_base < 2:
+        raise ConfigError(f'validate: expected a number of base samples >= 2, got {n_base!r}')
+    check_seed(seed)
     result = result or analyze(model, dists, seed=seed, **analyze_kwargs)
     mc = monte_carlo_indices(model, dists, n_base, seed)
     errors = {name: float(np.max(np.abs(np.asarray(getattr(result, name))
