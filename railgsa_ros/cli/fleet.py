@@ -68,27 +68,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def pass_options(args: argparse.Namespace) -> object:
-    """PassOptions from the command line (ConfigError naming the option or file)."""
-    from dataclasses import fields
-
-    from railgsa_ros.cli.review import parameters
+    """PassOptions from the command line (ConfigError naming the option or file): the inversion
+    configuration and vehicle exactly as ``railgsa review --no-uncertainty`` builds them."""
+    from railgsa_ros.cli.review import build_options
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.fleet.passes import PassOptions
-    from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.uncertainty import UncertaintyConfig
-    from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     if args.workers < 1:
         raise ConfigError(f'--workers: must be at least 1, got {args.workers}')
-    params = parameters(args)
-    known = {f.name for f in fields(UncertaintyConfig)} | {f.name for f in
-                                                          fields(InversionConfig)}
-    config = UncertaintyConfig.from_mapping({k: v for k, v in params.items() if k in known},
-                                            source=args.params or 'command line')
-    vehicle_file = args.vehicle or params.get('vehicle_file') or None
-    return PassOptions(config, load_vehicle(vehicle_file) if vehicle_file else VehicleParams(),
-                       args.line, args.track, args.direction, args.km_origin, args.vehicle_id,
-                       args.imu_topic, args.odom_topic)
+    review = build_options(argparse.Namespace(**vars(args), bag='', truth=None, uncertainty=None,
+                                              no_uncertainty=True, limit_end='lower'))
+    return PassOptions(review.config, review.vehicle, args.line, args.track, args.direction,
+                       args.km_origin, args.vehicle_id, args.imu_topic, args.odom_topic,
+                       rate_from_bag=review.rate_from_bag)
 
 
 def run_ingest(args: argparse.Namespace) -> int:

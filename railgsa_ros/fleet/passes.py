@@ -30,7 +30,8 @@ DX_M = 0.25  # common chainage grid step, m (EN 13848 samples at <= 0.5 m, 0.25 
 class PassOptions:
     """How every pass of a batch is inverted and where it lies: inversion configuration, nominal
     vehicle, location (line, track, direction 'up' (chainage grows with odometry) or 'down',
-    km-post of the odometry origin), vehicle id, topics and grid step (m)."""
+    km-post of the odometry origin), vehicle id, topics, grid step (m) and whether the IMU rate
+    comes from the bag (else ``config.inversion.rate_hz``)."""
 
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     vehicle: VehicleParams = field(default_factory=VehicleParams)
@@ -42,6 +43,7 @@ class PassOptions:
     imu_topic: str = '/imu/data'
     odom_topic: str = '/odom'
     dx_m: float = DX_M
+    rate_from_bag: bool = True
 
 
 @dataclass(frozen=True)
@@ -97,7 +99,8 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     stats = stamp_stats(stream.stamps_ns, cfg.inversion.gap_factor)
     if not np.isfinite(stats.rate_hz):
         raise InputError(f'{bag}: {options.imu_topic} needs at least two distinct stamps')
-    cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=stats.rate_hz))
+    if options.rate_from_bag:
+        cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=stats.rate_hz))
     run = run_stream(stream, cfg, options.vehicle, None)
     if run.chainage_m[-1] - run.chainage_m[0] < 10 * options.dx_m:
         raise InputError(f'{bag}: the pass covers {run.chainage_m[-1] - run.chainage_m[0]:.1f} m,'
