@@ -40,12 +40,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ing.add_argument('--km-origin', type=float, default=0.0, metavar='KM',
                      help="km-post of the odometry origin of a new line's first pass")
     ing.add_argument('--vehicle-id', default='', metavar='NAME', help='vehicle name stored')
+    ing.add_argument('--line-geometry', metavar='FILE',
+                     help='line geometry for GNSS anchoring: GeoJSON LineString (lon, lat) or '
+                          'CSV lat,lon; stored with the line (default: the stored one)')
+    ing.add_argument('--geometry-start-km', type=float, default=0.0, metavar='KM',
+                     help='km-post of the geometry\'s first vertex (default 0)')
     ing.add_argument('--params', metavar='FILE', help='ROS params file (as railgsa review)')
     ing.add_argument('--vehicle', metavar='FILE', help='nominal vehicle YAML')
     ing.add_argument('--method', choices=('spectral', 'feedback', 'kalman'))
     ing.add_argument('--band', choices=('d1', 'd2'))
     ing.add_argument('--imu-topic', default='/imu/data', metavar='T')
     ing.add_argument('--odom-topic', default='/odom', metavar='T')
+    ing.add_argument('--gnss-topic', default='/gnss/fix', metavar='T',
+                     help='sensor_msgs/NavSatFix topic (default /gnss/fix; used when present)')
     ing.set_defaults(func=run_ingest)
 
     rep = sub.add_parser('report', help='HTML trend report of the database')
@@ -80,21 +87,25 @@ def pass_options(args: argparse.Namespace) -> object:
                                               no_uncertainty=True, limit_end='lower'))
     return PassOptions(review.config, review.vehicle, args.line, args.track, args.direction,
                        args.km_origin, args.vehicle_id, args.imu_topic, args.odom_topic,
-                       rate_from_bag=review.rate_from_bag)
+                       args.gnss_topic, rate_from_bag=review.rate_from_bag)
 
 
 def run_ingest(args: argparse.Namespace) -> int:
     """Ingest, printing one line per bag and a summary; exit 1 when a bag failed."""
     from railgsa_ros.fleet import db
+    from railgsa_ros.fleet.gnss import load_geometry
     from railgsa_ros.fleet.ingest import ingest
 
     options = pass_options(args)
+    geometry = None
+    if args.line_geometry:
+        geometry = load_geometry(args.line_geometry, 1000.0 * args.geometry_start_km, args.line)
 
     def show(o: object) -> None:
         label = f'pass {o.pass_id}' if o.pass_id is not None else '-'
         print(f'{o.status:<9} {label:<8} {o.bag}: {o.message}', flush=True)
 
-    outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show)
+    outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show, geometry)
     for o in outcomes:
         if o.status == 'skipped':
             show(o)

@@ -72,8 +72,9 @@ def _level(depth_m: float, limits_row: np.ndarray) -> tuple[str, str, float]:
 
 
 def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
-                limits: Limits) -> None:
-    """Recompute the line's scatter, fused profile, detections and defects (module docstring)."""
+                limits: Limits, geometry: object | None = None) -> None:
+    """Recompute the line's scatter, fused profile, detections and defects (module docstring);
+    with a ``geo.Line`` in the line's frame, the defects get their WGS84 position."""
     pass_scatter(con, line, track)
     fuse_line(con, line, track)
     passes = line_passes(con, line, track)
@@ -109,13 +110,17 @@ def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
                                ('stamp', prof['stamp_ns'][pk.index]),
                                ('detected', (i, d) in detected)):
                 rows[key].append(value)
-    _store(con, line, track, passes, rows, x_def, sign_def, limits)
+    frame = con.execute('SELECT frame FROM lines WHERE line = ? AND track = ?',
+                        [line, track]).fetchone()
+    where = geometry if frame is not None and frame[0] == 'gnss' else None
+    _store(con, line, track, rows, x_def, sign_def, limits, where)
 
 
-def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, passes: list[LinePass],
-           rows: dict[str, list], x_def: np.ndarray, sign_def: np.ndarray,
-           limits: Limits) -> None:
-    """Write the line's detections and defects (replacing the previous ones)."""
+def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, rows: dict[str, list],
+           x_def: np.ndarray, sign_def: np.ndarray, limits: Limits,
+           geometry: object | None) -> None:
+    """Write the line's detections and defects (replacing the previous ones); WGS84
+    positions from ``geometry`` (None: NULL)."""
     key = [line, track]
     con.execute('DELETE FROM detections WHERE line = ? AND track = ?', key)
     con.execute('DELETE FROM defects WHERE line = ? AND track = ?', key)
@@ -132,14 +137,21 @@ def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, passes: list[L
         'signed_m': r['signed'], 'speed_kmh': speed_kmh,
         'time': np.array([db.timestamp(t) for t in r['stamp']], dtype='datetime64[us]'),
         'level': np.array(levels), 'detected': r['detected'].astype(bool)})
+    lat, lon = np.full(x_def.size, np.nan), np.full(x_def.size, np.nan)
+    if geometry is not None:
+        inside = (x_def >= geometry.start_m) & (x_def <= geometry.end_m)
+        if inside.any():
+            lat[inside], lon[inside] = geometry.position(x_def[inside])
     for d in range(x_def.size):
         _store_defect(con, line, track, d, x_def[d], sign_def[d],
-                      {k: v[r['defect'] == d] for k, v in r.items()}, limits)
+                      {k: v[r['defect'] == d] for k, v in r.items()}, limits,
+                      (float(lat[d]), float(lon[d])))
 
 
 def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int, x: float,
-                  sign: float, obs: dict[str, np.ndarray], limits: Limits) -> None:
-    """One defect's trend row from its observations (in time order)."""
+                  sign: float, obs: dict[str, np.ndarray], limits: Limits,
+                  lat_lon: tuple[float, float]) -> None:
+    """One defect's trend row from its observations (in time order), at (lat, lon) deg."""
     found_at = np.flatnonzero(obs['detected'])
     first = int(found_at[0])
     new = first > 0  # an earlier pass covered it and did not find it
@@ -161,12 +173,12 @@ def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int,
     w = 1.0 / obs['x_sd'][use] ** 2 if np.all(obs['x_sd'][use] > 0) else None
     x_sd = float(np.sqrt(1.0 / w.sum())) if w is not None else 0.0
     per_year = 365.25e3  # m/day -> mm/year
-    con.execute('INSERT INTO defects VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, '
-                '?, ?, ?, ?, ?)',
+    con.execute(f'INSERT INTO defects VALUES ({", ".join("?" * 24)})',
                 [line, track, d, x, x / 1000.0, x_sd, int(sign),
                  db.timestamp(obs['stamp'][first]), db.timestamp(obs['stamp'][-1]),
                  int(t_days.size), new, depth, depth_sd, rate * per_year, rate_se * per_year,
-                 speed * 3.6, level, nxt, limit, *dates])
+                 speed * 3.6, level, nxt, limit, *dates,
+                 *(v if np.isfinite(v) else None for v in lat_lon)])
 
 
 def _date(t_days: float) -> object:

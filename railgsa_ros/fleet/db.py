@@ -5,7 +5,8 @@ touch the file. Tables (docs/fleet.md has the columns and units):
 
 - ``passes``: one row per bag (status ``ok``, ``unaligned`` or ``failed`` with its message);
 - ``alignments``: offset, scale and their covariance, method and correlation per pass;
-- ``lines``: one row per (line, track): grid step, band, reference pass;
+- ``lines``: one row per (line, track): grid step, band, reference pass, frame ('gnss': the
+  chainage of the line geometry; 'odometry': the first pass's odometry) and geometry (JSON);
 - ``profiles``: each pass on its line's common grid (cell * dx_m = line chainage, m);
 - ``fused``: the fused profile per line with its standard deviation and pass count;
 - ``segments``: SD of the band-filtered profile per 200 m section per pass;
@@ -37,7 +38,7 @@ CREATE TABLE IF NOT EXISTS alignments (
     windows INTEGER, start_m DOUBLE, end_m DOUBLE, position_sd_m DOUBLE);
 CREATE TABLE IF NOT EXISTS lines (
     line VARCHAR, track VARCHAR, dx_m DOUBLE, band VARCHAR, reference_pass INTEGER,
-    PRIMARY KEY (line, track));
+    frame VARCHAR, geometry VARCHAR, PRIMARY KEY (line, track));
 CREATE TABLE IF NOT EXISTS profiles (
     pass_id INTEGER, cell BIGINT, u_m DOUBLE, valid BOOLEAN, stamp_ns BIGINT, speed_mps DOUBLE);
 CREATE TABLE IF NOT EXISTS fused (
@@ -53,7 +54,7 @@ CREATE TABLE IF NOT EXISTS defects (
     sign INTEGER, first_seen TIMESTAMP, last_seen TIMESTAMP, passes INTEGER, new BOOLEAN,
     depth_m DOUBLE, depth_sd_m DOUBLE, rate_mm_per_year DOUBLE, rate_se_mm_per_year DOUBLE,
     speed_kmh DOUBLE, level VARCHAR, next_level VARCHAR, next_limit_m DOUBLE,
-    projected DATE, projected_early DATE, projected_late DATE);
+    projected DATE, projected_early DATE, projected_late DATE, lat DOUBLE, lon DOUBLE);
 """
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.align import Alignment, Reference, on_line_grid, origin, xcorr_align
 from railgsa_ros.fleet.condition import update_line
+from railgsa_ros.fleet.gnss import align_fixes, geometry_json, line_from_json
 from railgsa_ros.fleet.passes import PassFailure, PassOptions, PassResult, analyse_or_fail
 from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.sections import section_sd
@@ -97,21 +98,40 @@ def _pass_row(con: duckdb.DuckDBPyConnection, bag: str, options: PassOptions, st
     return int(pid)
 
 
-def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult) -> Outcome:
+def _align(ref: Reference | None, result: PassResult, geometry: object | None,
+           frame: str | None) -> Alignment | None:
+    """GNSS (when the pass has fixes, the line a geometry and a GNSS frame), refined by
+    cross-correlation against the reference (searched around the GNSS position, or over the
+    whole reference without it); the GNSS alignment alone when the profiles do not match."""
+    o = result.options
+    gnss = None
+    if geometry is not None and len(result.fixes) and frame in (None, 'gnss'):
+        gnss = align_fixes(result.fixes, result.stamps_ns, result.s_m, geometry)
+    prior = gnss or origin(1000.0 * o.km_origin, o.direction)
+    if ref is None:
+        return prior
+    search = None if gnss is None else float(4 * gnss.position_sd(result.s_m).max() + 10.0)
+    return xcorr_align(ref, result.s_m, result.u_m, result.valid, prior, search) or gnss
+
+
+def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult,
+               geometry: object | None = None) -> Outcome:
     """Align one pass against its line, write its rows; status 'ok' or 'unaligned'."""
     o, dx = result.options, result.options.dx_m
     ref = _reference(con, o.line, o.track, dx)
-    prior = origin(1000.0 * o.km_origin, o.direction)
-    alignment = prior if ref is None else xcorr_align(ref, result.s_m, result.u_m, result.valid,
-                                                      prior)
+    row = con.execute('SELECT frame FROM lines WHERE line = ? AND track = ?',
+                      [o.line, o.track]).fetchone()
+    alignment = _align(ref, result, geometry, row[0] if row else None)
     if alignment is None:
         pid = _pass_row(con, result.bag, o, 'unaligned',
                         "no stretch matches the line's profile (correlation below 0.6)", result)
         return Outcome(result.bag, pid, 'unaligned', 'not aligned: no match with the line')
     pid = _pass_row(con, result.bag, o, 'ok', '', result, alignment)
     if ref is None:
-        con.execute('INSERT INTO lines VALUES (?, ?, ?, ?, ?)',
-                    [o.line, o.track, dx, o.config.inversion.band, pid])
+        con.execute('INSERT INTO lines VALUES (?, ?, ?, ?, ?, ?, ?)',
+                    [o.line, o.track, dx, o.config.inversion.band, pid,
+                     'gnss' if alignment.method == 'gnss' else 'odometry',
+                     None if geometry is None else geometry_json(geometry)])
     cells, (u, stamps, speed), valid = on_line_grid(
         result.s_m, (result.u_m, result.stamps_ns, result.speed_mps), result.valid, alignment, dx)
     db.insert_columns(con, 'profiles', {
@@ -138,12 +158,29 @@ def _one_line(exc: BaseException) -> str:
     return f'{type(exc).__name__}: {text.splitlines()[0]}' if text else type(exc).__name__
 
 
+def _geometry(con: duckdb.DuckDBPyConnection, options: PassOptions,
+              given: object | None) -> object | None:
+    """The line geometry: the one given (stored for the line if it has none yet), else the
+    stored one, else None."""
+    key = [options.line, options.track]
+    row = con.execute('SELECT geometry FROM lines WHERE line = ? AND track = ?', key).fetchone()
+    if given is not None:
+        if row is not None and row[0] is None:
+            con.execute('UPDATE lines SET geometry = ? WHERE line = ? AND track = ?',
+                        [geometry_json(given), *key])
+        return given
+    return line_from_json(row[0]) if row and row[0] else None
+
+
 def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions,
            scheduler: str | None = None, workers: int = 2,
-           report: Callable[[Outcome], None] | None = None) -> list[Outcome]:
-    """Ingest ``bags`` (module docstring); ``report(outcome)`` as each bag is done."""
+           report: Callable[[Outcome], None] | None = None,
+           geometry: object | None = None) -> list[Outcome]:
+    """Ingest ``bags`` (module docstring); ``report(outcome)`` as each bag is done;
+    ``geometry``: the line's ``geo.Line`` for GNSS anchoring (else the one stored)."""
     con = db.connect(db_path)
     try:
+        geometry = _geometry(con, options, geometry)
         done = {row[0] for row in con.execute(
             "SELECT bag FROM passes WHERE status = 'ok'").fetchall()}
         names = [str(Path(b).resolve()) for b in bags]
@@ -165,14 +202,14 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
                     outcome = Outcome(bag, pid, 'failed', result.message)
                 else:
                     con.begin()
-                    outcome = store_pass(con, result)
+                    outcome = store_pass(con, result, geometry)
                     con.commit()
                 future.release()
                 outcomes.append(outcome)
                 if report is not None:
                     report(outcome)
         update_line(con, options.line, options.track, options.dx_m,
-                    en13848_limits(options.config.inversion.band))
+                    en13848_limits(options.config.inversion.band), geometry)
     finally:
         con.close()
     return outcomes

@@ -17,6 +17,7 @@ import numpy as np
 
 from railgsa_ros.bag import read_imu
 from railgsa_ros.errors import InputError, RailGsaError
+from railgsa_ros.fleet.gnss import GNSS_TOPIC, Fixes, read_fixes
 from railgsa_ros.review.health import stamp_stats
 from railgsa_ros.review.sections import resample
 from railgsa_ros.review.stream import run_stream
@@ -30,8 +31,8 @@ DX_M = 0.25  # common chainage grid step, m (EN 13848 samples at <= 0.5 m, 0.25 
 class PassOptions:
     """How every pass of a batch is inverted and where it lies: inversion configuration, nominal
     vehicle, location (line, track, direction 'up' (chainage grows with odometry) or 'down',
-    km-post of the odometry origin), vehicle id, topics, grid step (m) and whether the IMU rate
-    comes from the bag (else ``config.inversion.rate_hz``)."""
+    km-post of the odometry origin), vehicle id, topics (IMU, odometry, GNSS), grid step (m)
+    and whether the IMU rate comes from the bag (else ``config.inversion.rate_hz``)."""
 
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     vehicle: VehicleParams = field(default_factory=VehicleParams)
@@ -42,6 +43,7 @@ class PassOptions:
     vehicle_id: str = ''
     imu_topic: str = '/imu/data'
     odom_topic: str = '/odom'
+    gnss_topic: str = GNSS_TOPIC
     dx_m: float = DX_M
     rate_from_bag: bool = True
 
@@ -51,7 +53,7 @@ class PassResult:
     """A pass on its odometry grid: cell centres s (N,) m from the first sample, band-filtered
     irregularity u (N,) m, valid (N,) (False across data gaps), stamp (N,) ns and speed (N,) m/s
     at each cell; the run's first/last stamp (ns), IMU samples, rate (Hz), rejected-sample
-    counters and the CPU seconds the worker spent."""
+    counters, the CPU seconds the worker spent and the GNSS fixes (empty without GNSS)."""
 
     bag: str
     options: PassOptions
@@ -66,6 +68,7 @@ class PassResult:
     rate_hz: float
     counters: dict[str, int]
     cpu_s: float
+    fixes: Fixes
 
     @property
     def duration_s(self) -> float:
@@ -108,6 +111,7 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     s, u, valid = resample(run.chainage_m, run.u_m, options.dx_m)
     stamps = np.interp(s, run.chainage_m, run.stamps_ns.astype(float)).astype(np.int64)
     speed = np.interp(s, run.chainage_m, run.speed_mps)
+    fixes = read_fixes(bag, options.gnss_topic)
     return PassResult(str(bag), options, s, u, valid, stamps, speed, int(stream.stamps_ns[0]),
                       int(stream.stamps_ns[-1]), int(stream.stamps_ns.size), float(stats.rate_hz),
-                      dict(run.counters), time.process_time() - cpu)
+                      dict(run.counters), time.process_time() - cpu, fixes)

@@ -13,7 +13,7 @@ import duckdb
 COLUMNS = ('line', 'track', 'defect_id', 'km', 'x_sd_m', 'sign', 'depth_m', 'depth_sd_m',
            'rate_mm_per_year', 'rate_se_mm_per_year', 'speed_kmh', 'level', 'next_level',
            'next_limit_m', 'projected', 'projected_early', 'projected_late', 'new',
-           'first_seen', 'last_seen', 'passes')
+           'first_seen', 'last_seen', 'passes', 'lat', 'lon')
 
 
 def defects_between(con: duckdb.DuckDBPyConnection, line: str, from_km: float, to_km: float,
