@@ -194,8 +194,8 @@ def test_band_quantiles_are_those_of_the_sampled_surrogate(run):
     design = build_design(config, VehicleParams(), DISTS)
     u = _bank(run, design.theta)[:, ::7]  # (P, K): K = 572 is not a multiple of GEMM_ROWS
     lower, mean, upper = band_statistics(design, (0.1, 0.8), u)
-    pce = PCE(design.alpha, design.projector @ u, config.germ)
-    samples = pce(sobol(len(DISTS), 1000, config.seed, config.germ))  # (S, K)
+    pce = PCE(design.alpha, design.projector @ u, design.germ)
+    samples = pce(sobol(len(DISTS), 1000, config.seed, design.germ))  # (S, K)
     scale = np.abs(mean).max()
     np.testing.assert_allclose(mean, pce.mean, rtol=0, atol=1e-14 * scale)
     for got, q in ((lower, 0.1), (upper, 0.8)):

@@ -38,8 +38,8 @@ class WorstSurrogate:
 
 def worst_surrogate(design: Design, worst: Worst, config: UncertaintyConfig) -> WorstSurrogate:
     """PCE in mm from the bank outputs at the worst sample, sampled N_SAMPLES times."""
-    pce = PCE(design.alpha, (design.projector @ worst.bank_u_m)[:, None] * MM, config.germ)
-    samples = pce(sobol(design.alpha.shape[1], N_SAMPLES, config.seed, config.germ))[:, 0]
+    pce = PCE(design.alpha, (design.projector @ worst.bank_u_m)[:, None] * MM, design.germ)
+    samples = pce(sobol(design.alpha.shape[1], N_SAMPLES, config.seed, design.germ))[:, 0]
     result = Result(pce, samples, None, design.points, config.rule, config.order, design.fit,
                     scalar=True)
     return WorstSurrogate(worst.chainage_m, worst.stamp_ns, result, design.names)

@@ -16,7 +16,7 @@ from typing import Any
 from railgsa_ros.config import check_field, key_list, load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.uq.germ import GERMS
+from railgsa_ros.uq.germ import AUTO, GERMS
 from railgsa_ros.uq.rules import RULES
 
 NODE_NAME = 'uncertainty_node'
@@ -37,8 +37,8 @@ class UncertaintyConfig:
                    choices=RULES)
     order: int = _p(2, 'total PCE order; pem5 projects exactly up to 2, pem3 up to 1', (1, 4))
     rule_size: int = _p(0, 'lstsq: number of points (0 = twice the PCE terms)', (0, 4096))
-    germ: str = _p('hermite', 'PCE germ: hermite (normal, PEM rules) or legendre (uniform)',
-                   choices=GERMS)
+    germ: str = _p(AUTO, 'PCE germ: auto (legendre if every input is uniform and the rule is '
+                         'not PEM, else hermite), hermite or legendre', choices=(AUTO, *GERMS))
     lower_quantile: float = _p(0.025, 'band lower quantile (probability)', (1e-4, 0.5))
     upper_quantile: float = _p(0.975, 'band upper quantile (probability)', (0.5, 1.0 - 1e-4))
     germ_samples: int = _p(1024, 'quasi-random germ points for the band quantiles', (16, 65536))

@@ -19,7 +19,7 @@ import numpy as np
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uq.distributions import Distribution, isoprobabilistic
-from railgsa_ros.uq.germ import sobol, to_normal
+from railgsa_ros.uq.germ import resolve, sobol, to_normal
 from railgsa_ros.uq.pce import basis, multi_indices
 from railgsa_ros.uq.rules import exact_degree, make_rule
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, as_theta
@@ -28,7 +28,8 @@ from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, as_theta
 @dataclass(frozen=True)
 class Design:
     """Rule points xi (P, n) in germ space, their vehicles theta (P, 5), the PCE multi-indices
-    alpha (T, n), ``projector`` (T, P), ``germ_basis`` (T - 1, S) and the fit used."""
+    alpha (T, n), ``projector`` (T, P), ``germ_basis`` (T - 1, S), the fit used and the germ
+    (the config's, or the inputs' default for 'auto')."""
 
     names: tuple[str, ...]
     dists: tuple[Distribution, ...]
@@ -38,6 +39,7 @@ class Design:
     projector: np.ndarray
     germ_basis: np.ndarray
     fit: str
+    germ: str
 
     @property
     def points(self) -> int:
@@ -45,10 +47,10 @@ class Design:
         return int(self.xi.shape[0])
 
 
-def _projector(config: UncertaintyConfig, xi: np.ndarray, w: np.ndarray,
-               alpha: np.ndarray) -> tuple[np.ndarray, str]:
+def _projector(config: UncertaintyConfig, xi: np.ndarray, w: np.ndarray, alpha: np.ndarray,
+               germ: str) -> tuple[np.ndarray, str]:
     """(T, P) map from rule-point outputs to PCE coefficients, and 'projection' or 'ols'."""
-    psi = basis(xi, alpha, config.germ)
+    psi = basis(xi, alpha, germ)
     exact = exact_degree(config.rule, config.order)
     if exact is not None:
         if 2 * config.order > exact:
@@ -71,13 +73,14 @@ def build_design(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
         raise ConfigError(f'uncertain parameters: expected some of {", ".join(PARAM_NAMES)}, '
                           f'got {", ".join(names) or "none"}')
     n = len(names)
-    xi, w = make_rule(config.rule, n, config.order, config.rule_size or None, config.seed,
-                      config.germ)
+    germ = resolve(config.germ, list(dists.values()), config.rule)
+    xi, w = make_rule(config.rule, n, config.order, config.rule_size or None, config.seed, germ)
     theta = np.tile(as_theta(vehicle), (xi.shape[0], 1))
-    physical = isoprobabilistic(list(dists.values()), to_normal(xi, config.germ))
+    physical = isoprobabilistic(list(dists.values()), to_normal(xi, germ))
     theta[:, [PARAM_NAMES.index(name) for name in names]] = physical
     alpha = multi_indices(n, config.order)
-    projector, fit = _projector(config, xi, w, alpha)
-    z = sobol(n, config.germ_samples, config.seed, config.germ)
-    germ_basis = np.ascontiguousarray(basis(z, alpha, config.germ)[:, 1:].T)
-    return Design(names, tuple(dists.values()), xi, theta, alpha, projector, germ_basis, fit)
+    projector, fit = _projector(config, xi, w, alpha, germ)
+    z = sobol(n, config.germ_samples, config.seed, germ)
+    germ_basis = np.ascontiguousarray(basis(z, alpha, germ)[:, 1:].T)
+    return Design(names, tuple(dists.values()), xi, theta, alpha, projector, germ_basis, fit,
+                  germ)

@@ -171,9 +171,9 @@ class DeltaBasis:
     def build(cls, config: UncertaintyConfig, design: Design) -> DeltaBasis:
         """Basis of ``design.alpha`` at the delta design of ``config`` (n_mc, seed, germ)."""
         n = design.alpha.shape[1]
-        points = delta_design(n, config.n_mc, seed=config.seed, germ=config.germ)
-        cond = basis(points.cond.reshape(-1, n), design.alpha, config.germ)
-        return cls(basis(points.ref, design.alpha, config.germ),
+        points = delta_design(n, config.n_mc, seed=config.seed, germ=design.germ)
+        cond = basis(points.cond.reshape(-1, n), design.alpha, design.germ)
+        return cls(basis(points.ref, design.alpha, design.germ),
                    cond.reshape(*points.cond.shape[:3], -1))
 
 
@@ -185,7 +185,7 @@ def analyze_windows(config: UncertaintyConfig, design: Design, windows: list[_Wi
     start = time.perf_counter()
     qois = config.qois
     values = np.concatenate([w.quantities(qois) for w in windows], axis=1)  # (P, W m)
-    pce = PCE(design.alpha, design.projector @ values, config.germ)
+    pce = PCE(design.alpha, design.projector @ values, design.germ)
     delta = delta_from_outputs(delta_basis.ref @ pce.coef, delta_basis.cond @ pce.coef)
     std = np.sqrt(pce.variance)
     elapsed = (time.perf_counter() - start) / len(windows)

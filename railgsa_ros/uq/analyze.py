@@ -25,7 +25,7 @@ from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.uq.conditional import conditional_design, delta_conditional
 from railgsa_ros.uq.delta import delta_indices
 from railgsa_ros.uq.distributions import Distribution, isoprobabilistic
-from railgsa_ros.uq.germ import check, sobol, to_normal
+from railgsa_ros.uq.germ import resolve, sobol, to_normal
 from railgsa_ros.uq.pce import PCE, basis, fit_ols, fit_omp, fit_projection, multi_indices
 from railgsa_ros.uq.rules import exact_degree, make_rule
 
@@ -137,7 +137,7 @@ def check_seed(seed: int | None) -> None:
 def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: str = 'pem5',
             delta: bool | str = True, n_mc: int = 100_000, seed: int | None = 0,
             fit: str = 'auto', size: int | None = None, delta_samples: int = 400_000,
-            germ: str = 'hermite') -> Result:
+            germ: str | None = None) -> Result:
     """Fit a PCE of total ``order`` to ``model`` and derive every statistic from it.
 
     Regression fits (ols, omp) on a quadrature rule add scrambled Sobol' points up to twice
@@ -147,9 +147,11 @@ def analyze(model: Model, dists: Sequence[Distribution], order: int = 3, rule: s
     delta: True or 'surrogate' (double-loop Monte Carlo on the surrogate, ``delta_samples``
     surrogate runs per input), 'pem5' (the paper's conditional-PEM5 design, extra model runs),
     False (skip). ``n_mc`` surrogate samples feed ``samples`` and ``quantiles``. germ: hermite
-    (the paper; PEM rules) or legendre (uniform inputs, gauss/lstsq rules).
+    (the paper; PEM rules) or legendre (uniform inputs, gauss/lstsq rules); None or 'auto':
+    the Wiener-Askey germ of ``dists`` (``germ.default_germ``: legendre when every input is
+    uniform and the rule is not PEM, else hermite).
     """
-    check(germ)
+    germ = resolve(germ, dists, rule)
     if fit not in FITS:
         raise ConfigError(f'fit: unknown fit {fit!r}; expected one of {", ".join(FITS)}')
     if delta not in DELTAS:

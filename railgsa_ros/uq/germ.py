@@ -5,10 +5,17 @@ through a normal germ is a saturating function of xi whose Hermite coefficients 
 (measured on Ishigami's sin(x): 1.3 % of the amplitude left beyond order 30), so uniform inputs
 are better served by the Legendre germ (the Wiener-Askey match), with Gauss or regression rules.
 Every distribution maps from either germ through the probability u: xi = Phi^-1(u).
+
+``default_germ`` (germ ``'auto'``, the default) follows the inputs: Legendre when every input is
+uniform and the rule is not a PEM rule, else Hermite. Mixed inputs get Hermite: one germ serves
+every axis here, a normal input through a uniform germ is Phi^-1 of it (unbounded at the ends:
+worse than the bounded uniform through a normal germ), and the PEM rules exist only for it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
 import warnings
 
 import numpy as np
@@ -17,8 +24,11 @@ from scipy import special
 from scipy.stats import qmc
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.uq.distributions import Uniform
 
 GERMS = ('hermite', 'legendre')
+AUTO = 'auto'
+PEM_RULES = ('pem3', 'pem5')
 
 
 def check(germ: str) -> str:
@@ -26,6 +36,18 @@ def check(germ: str) -> str:
     if germ not in GERMS:
         raise ConfigError(f'germ: unknown germ {germ!r}; expected one of {", ".join(GERMS)}')
     return germ
+
+
+def default_germ(dists: Sequence[Any], rule: str = 'gauss') -> str:
+    """The Wiener-Askey germ of the inputs (module docstring): legendre for all-uniform inputs
+    on a Gauss or regression rule, else hermite."""
+    uniform = bool(dists) and all(isinstance(d, Uniform) for d in dists)
+    return 'legendre' if uniform and rule not in PEM_RULES else 'hermite'
+
+
+def resolve(germ: str | None, dists: Sequence[Any], rule: str = 'gauss') -> str:
+    """``germ`` checked, or the default germ of ``dists`` when None or 'auto'."""
+    return default_germ(dists, rule) if germ in (None, AUTO) else check(germ)
 
 
 def from_unit(u: np.ndarray, germ: str) -> np.ndarray:
