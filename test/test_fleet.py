@@ -170,7 +170,7 @@ def test_report_writes_html_with_figures(ingested, tmp_path):
     out = tmp_path / 'report'
     assert main(['fleet', 'report', '--db', str(path), '--out', str(out)]) == 0
     html = (out / 'report.html').read_text()
-    for png in ('fused_L1_1.png', 'trends_L1_1.png'):
+    for png in ('fused_L1_1.png', 'trends_L1_1.png', 'sections_L1_1.png'):
         assert (out / png).stat().st_size > 5000 and png in html
     assert 'NEW' in html and 'broken.mcap' in html
 

@@ -2,8 +2,8 @@
 
 Per line: the fused profile with its +-2 SD band and the followed defects; each defect's depth
 over time with its error bars, the fitted trend with its 95 % band, the next EN 13848-5 limit
-and the projected date. Then the defects table (NEW flagged) and the pass table (failed and
-unaligned passes with their message).
+and the projected date; the SD per 200 m section of every pass. Then the defects table (NEW
+flagged) and the pass table (failed and unaligned passes with their message).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from railgsa_ros.fileio import atomic_output
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.condition import DAY_NS
 from railgsa_ros.fleet.trend import fit_trend
+from railgsa_ros.review.limits import en13848_limits
 
 REPORT = 'report.html'
 MM = 1e3
@@ -95,6 +96,34 @@ def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: st
     return path
 
 
+def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str) -> Path:
+    """SD of the band-filtered profile per 200 m section, one line per pass (by date), with the
+    lower end of the EN 13848-5 SD alert range of each section's speed."""
+    rows = db.fetch(con, """SELECT s.pass_id, s.start_m, s.sd_m, s.speed_mps,
+                                  strftime(p.start_time, '%Y-%m-%d') AS day
+                           FROM segments s JOIN passes p USING (pass_id)
+                           WHERE p.line = ? AND p.track = ? AND p.status = 'ok'
+                           ORDER BY p.start_time, s.start_m""", [line, track])
+    fig, ax = plt.subplots(figsize=(11, 3.2), layout='constrained')
+    for pid in dict.fromkeys(rows['pass_id'].tolist()):
+        pick = rows['pass_id'] == pid
+        km = (rows['start_m'][pick] + 100.0) / 1000
+        ax.plot(km, rows['sd_m'][pick] * MM, 'o-', ms=3, lw=0.8,
+                label=f'pass {pid} ({rows["day"][pick][0]})')
+    if rows['start_m'].size:
+        alert = en13848_limits().sd_at(rows['speed_mps'])[:, 0]
+        order = np.argsort(rows['start_m'])
+        ax.step((rows['start_m'][order] + 100.0) / 1000, alert[order] * MM, where='mid',
+                color='tab:red', ls='--', lw=1, label='SD alert (lower end)')
+    ax.set(xlabel='km (section centre)', ylabel='SD per 200 m (mm)', ylim=(0, None),
+           title=f'line {line} track {track}: 200 m sections')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=3)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def epoch_days(value: object) -> float:
     """Days since the epoch of a date or datetime."""
     return float(np.datetime64(value, 'ns').astype(np.int64)) / DAY_NS
@@ -142,6 +171,7 @@ def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = Fal
                 slug = _slug(line, track)
                 fused = plot_fused(tmp / f'fused_{slug}.png', con, line, track, dx)
                 trends = plot_trends(tmp / f'trends_{slug}.png', con, line, track)
+                sections = plot_segments(tmp / f'sections_{slug}.png', con, line, track)
                 parts += [f'<h2>Line {escape(line)}, track {escape(track)}</h2>',
                           f'<img src="{fused.name}" alt="fused profile">',
                           '<h3>Defects (depth = mean-to-peak of the band-filtered profile; '
@@ -152,7 +182,9 @@ def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = Fal
                               next_level, next_limit_m * 1e3 AS next_limit_mm, projected,
                               projected_early, projected_late, first_seen FROM defects
                               WHERE line = ? AND track = ? ORDER BY km""", [line, track]),
-                          f'<img src="{trends.name}" alt="defect trends">']
+                          f'<img src="{trends.name}" alt="defect trends">',
+                          '<h3>Standard deviation per 200 m section</h3>',
+                          f'<img src="{sections.name}" alt="200 m sections">']
             parts += ['<h2>Passes</h2>', _table(con, """
                 SELECT p.pass_id, p.bag, p.start_time, p.vehicle, p.direction,
                        p.speed_mean_mps * 3.6 AS speed_kmh, p.duration_s, p.status, p.message,
