@@ -165,6 +165,11 @@ class _McapTopics:
     def read(self, file: Path) -> None:
         """Add the wanted messages of one MCAP file (read record by record: a chunk at a time
         in memory)."""
+        for _ in self.chunks(file):
+            pass
+
+    def chunks(self, file: Path) -> Iterator[None]:
+        """``read`` one chunk at a time: yields after each chunk's messages were added."""
         self._dest: dict[int, str] = {}  # channel id -> wanted topic
         self._known: set[int] = set()  # every channel id seen
         with file.open('rb') as stream:
@@ -191,6 +196,7 @@ class _McapTopics:
                 if chunk is not None:
                     self._chunk(*chunk)
                     chunk = None
+                    yield
                 self._records += 1
                 if opcode in (Opcode.DATA_END, Opcode.FOOTER):
                     break  # the summary section follows: nothing more to read
@@ -203,6 +209,7 @@ class _McapTopics:
                     stream.seek(length, os.SEEK_CUR)
             if chunk is not None:
                 self._chunk(*chunk)
+                yield
 
     def _walk(self, data: bytes, pos: int, end: int, key: int) -> None:
         """Channels and messages of the records in data[pos:end], one at a time; ``key``: file
@@ -299,21 +306,25 @@ def _read_topics(reader: AnyReader, path: Path,
         times, raws = collected[conn.topic]
         times.append(log_time)
         raws.append(raw)
-    out = {}
-    for topic, msgtype in wanted.items():
-        times, raws = collected[topic]
-        layout = LAYOUTS[msgtype]
-        try:
-            dec = cdr.decode(layout, raws)
-            stamps, strings, values = dec.stamps_ns, dec.strings, dec.values
-        except ValueError:
-            flat = [flatten(reader.deserialize(r, msgtype), msgtype) for r in raws]
-            stamps = np.array([f[0] for f in flat], dtype=np.int64)
-            strings = tuple(np.array([f[1][j] for f in flat], dtype=str)
-                            for j in range(layout.n_strings))
-            values = np.array([f[2] for f in flat]).reshape(len(flat), layout.n_doubles)
-        out[topic] = TopicData(np.array(times, dtype=np.int64), stamps, strings, values)
-    return out
+    return {topic: _decode_raws(reader, msgtype, *collected[topic])
+            for topic, msgtype in wanted.items()}
+
+
+def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
+                 raws: list[bytes]) -> TopicData:
+    """Messages of a fixed-layout type collected from rosbags as arrays: vectorised when they are
+    plain CDR, else deserialised one by one with the bag's own definitions."""
+    layout = LAYOUTS[msgtype]
+    try:
+        dec = cdr.decode(layout, raws)
+        stamps, strings, values = dec.stamps_ns, dec.strings, dec.values
+    except ValueError:
+        flat = [flatten(reader.deserialize(r, msgtype), msgtype) for r in raws]
+        stamps = np.array([f[0] for f in flat], dtype=np.int64)
+        strings = tuple(np.array([f[1][j] for f in flat], dtype=str)
+                        for j in range(layout.n_strings))
+        values = np.array([f[2] for f in flat]).reshape(len(flat), layout.n_doubles)
+    return TopicData(np.array(times, dtype=np.int64), stamps, strings, values)
 
 
 def read_stamped(path: str | Path, topic: str, msgtype: str) -> TopicData:
@@ -347,6 +358,7 @@ class ImuStream:
     odom_stamps_ns: np.ndarray
     speed_mps: np.ndarray
     stamp_source: str = 'header'
+    gnss: GnssFixes | None = None  # NavSatFix messages of the same span (iter_imu), if asked
 
     def accel_variance(self, default: float) -> np.ndarray:
         """Per-sample, per-axis variance (T, 3) in (m/s^2)^2: the recorded diagonal, ``default``
@@ -377,21 +389,30 @@ def read_imu(path: str | Path, imu_topic: str = '/imu/data',
     imu, odom = data[imu_topic], data.get(odom_topic)
     if imu.values.shape[0] == 0:
         raise InputError(f'{path}: topic {imu_topic} has no messages')
-    cov = imu.values[:, IMU_FIELDS['linear_acceleration_covariance']]
-    absent = (cov[:, 0] == -1) | np.isnan(cov[:, 0])
-    if np.all(absent):
+    stream = _imu_stream(path, imu_topic, imu, odom, _stamps(imu)[1],
+                         _stamps(odom)[1] if odom is not None else 'header')
+    if np.all(np.isnan(stream.accel[:, 0])):
         raise InputError(f'{path}: {imu_topic} carries no linear acceleration '
                          '(linear_acceleration_covariance[0] is -1 or NaN)')
+    return stream
+
+
+def _imu_stream(path: Path, imu_topic: str, imu: TopicData, odom: TopicData | None,
+                imu_source: str, odom_source: str, gnss: GnssFixes | None = None) -> ImuStream:
+    """An ImuStream of decoded Imu (and Odometry) messages; ``*_source``: 'header' or
+    'log_time' (where the stamps come from)."""
+    cov = imu.values[:, IMU_FIELDS['linear_acceleration_covariance']]
+    absent = (cov[:, 0] == -1) | np.isnan(cov[:, 0])
     accel = imu.values[:, IMU_FIELDS['linear_acceleration']].copy()
     accel[absent] = np.nan
-    stamps, source = _stamps(imu)
+    stamps = imu.log_time_ns if imu_source == 'log_time' else imu.stamps_ns
     if odom is None:
         odom_stamps, speed = np.zeros(0, dtype=np.int64), np.zeros(0)
     else:
-        odom_stamps = _stamps(odom)[0]
+        odom_stamps = odom.log_time_ns if odom_source == 'log_time' else odom.stamps_ns
         speed = odom.values[:, ODOMETRY_FIELDS['twist.twist.linear'].start].copy()
     return ImuStream(path, imu_topic, stamps, imu.log_time_ns, accel, imu.strings[0], cov.copy(),
-                     odom_stamps, speed, source)
+                     odom_stamps, speed, imu_source, gnss)
 
 
 @dataclass(frozen=True)
@@ -418,3 +439,288 @@ def summarize(path: str | Path) -> list[TopicSummary]:
                 out.append(TopicSummary(topic, info.msgtype or '?', int(times.size),
                                         int(times.min()), int(times.max())))
     return out
+
+
+# Chunked, time-ordered reading: railgsa invert and review go through a bag in bounded memory.
+
+NAV_SAT_FIX = 'sensor_msgs/msg/NavSatFix'
+CHUNK = 65536  # IMU samples per chunk of iter_imu (65 s at 1 kHz)
+
+
+@dataclass(frozen=True)
+class GnssFixes:
+    """NavSatFix messages: stamps_ns (N,) int64 (header, or log time when it is zero),
+    latitude_deg, longitude_deg, altitude_m (N,) (WGS84), status (N,) int (NavSatStatus: -1 no
+    fix, 0 fix, 1 SBAS, 2 GBAS), covariance (N, 9) m^2 (ENU, row-major) and its type (N,)."""
+
+    stamps_ns: np.ndarray
+    latitude_deg: np.ndarray
+    longitude_deg: np.ndarray
+    altitude_m: np.ndarray
+    status: np.ndarray
+    covariance: np.ndarray
+    covariance_type: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.size)
+
+    @classmethod
+    def concat(cls, parts: Sequence[GnssFixes]) -> GnssFixes:
+        """Join fixes in order (an empty set for no parts)."""
+        if not parts:
+            return cls(np.zeros(0, np.int64), *(np.zeros(0) for _ in range(3)),
+                       np.zeros(0, np.int64), np.zeros((0, 9)), np.zeros(0, np.int64))
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                     cls.__dataclass_fields__))
+
+
+def _gnss_fixes(times: np.ndarray, raws: Sequence[bytes]) -> GnssFixes:
+    """NavSatFix messages deserialised one by one with rosbags (a few per second: no vectorised
+    layout needed); a zero header stamp takes the log time."""
+    store = typestore()
+    msgs = [store.deserialize_cdr(bytes(r), NAV_SAT_FIX) for r in raws]
+    stamps = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+                       for m in msgs], dtype=np.int64)
+    stamps = np.where(stamps == 0, np.asarray(times, np.int64), stamps)
+    return GnssFixes(stamps, *(np.array([getattr(m, f) for m in msgs], dtype=float)
+                               for f in ('latitude', 'longitude', 'altitude')),
+                     np.array([m.status.status for m in msgs], dtype=np.int64),
+                     np.array([m.position_covariance for m in msgs],
+                              dtype=float).reshape(-1, 9),
+                     np.array([m.position_covariance_type for m in msgs], dtype=np.int64))
+
+
+class _McapChunks(_McapTopics):
+    """``_McapTopics`` handing its messages out chunk by chunk in log-time order (file order on
+    ties). After each MCAP chunk, the messages older than every chunk still to come (their
+    ``message_start_time`` from the files' chunk indexes) are complete and go out; a file
+    without a summary (a recording cut short) is taken in chunk order. Topics of a type
+    without a fixed layout (NavSatFix) keep their messages' bytes."""
+
+    def __init__(self, wanted: dict[str, str]) -> None:
+        super().__init__({t: m for t, m in wanted.items() if m in LAYOUTS})
+        self.raw = {t for t, m in wanted.items() if m not in LAYOUTS}
+        self.layouts.update(dict.fromkeys(self.raw))
+        self.pieces.update({t: [] for t in self.raw})
+
+    def _add(self, topic: str, times: np.ndarray, keys: np.ndarray, block: np.ndarray) -> None:
+        if topic in self.raw:
+            self.pieces[topic].append((times, keys, [row.tobytes() for row in block]))
+        else:
+            super()._add(topic, times, keys, block)
+
+    def stream(self, files: list[Path]) -> Iterator[tuple[float, dict[str, tuple[np.ndarray,
+                                                                               Any]]]]:
+        """Per MCAP chunk: (boundary, batch) where batch maps topic -> (log times, cdr.Decoded or
+        list of bytes) of the messages logged before ``boundary`` (ns) not given before, in
+        log-time order."""
+        starts = [_chunk_starts(f) for f in files]
+        later = np.minimum.accumulate(
+            np.concatenate([s if s is not None else [] for s in starts] + [[np.inf]])[::-1])[::-1]
+        done = 0
+        for file, file_starts in zip(files, starts, strict=True):
+            for _ in self.chunks(file):
+                if file_starts is None:
+                    yield np.inf, self._take(np.inf)
+                    continue
+                done = min(done + 1, later.size - 1)
+                yield later[done], self._take(later[done])
+        yield np.inf, self._take(np.inf)
+
+    def _take(self, boundary: float) -> dict[str, tuple[np.ndarray, Any]]:
+        """Remove and return the messages logged before ``boundary`` (ns), sorted."""
+        out = {}
+        for topic, pieces in self.pieces.items():
+            if not pieces:
+                out[topic] = (np.zeros(0, np.int64), [] if topic in self.raw else
+                              cdr.decode(self.layouts[topic], []))
+                continue
+            times = np.concatenate([p[0] for p in pieces])
+            keys = np.concatenate([p[1] for p in pieces])
+            order = np.lexsort((keys, times))
+            cut = int(np.searchsorted(times[order], boundary, side='left'))
+            now, rest = order[:cut], order[cut:]
+            if topic in self.raw:
+                raws = [r for p in pieces for r in p[2]]
+                out[topic] = (times[now], [raws[i] for i in now])
+                kept = [raws[i] for i in rest]
+            else:
+                parts = [p[2] for p in pieces]
+                dec = cdr.Decoded(np.concatenate([p.stamps_ns for p in parts]),
+                                  tuple(np.concatenate(c) for c in
+                                        zip(*(p.strings for p in parts), strict=True)),
+                                  np.concatenate([p.values for p in parts]))
+                out[topic] = (times[now], _rows(dec, now))
+                kept = _rows(dec, rest)
+            self.pieces[topic] = [(times[rest], keys[rest], kept)] if rest.size else []
+        return out
+
+
+def _rows(dec: cdr.Decoded, rows: np.ndarray) -> cdr.Decoded:
+    """The messages ``rows`` of a Decoded."""
+    return cdr.Decoded(dec.stamps_ns[rows], tuple(s[rows] for s in dec.strings), dec.values[rows])
+
+
+def _chunk_starts(file: Path) -> np.ndarray | None:
+    """``message_start_time`` (ns) of an MCAP file's chunks in file order (its summary's chunk
+    indexes), None without a summary."""
+    from mcap.reader import make_reader
+
+    with file.open('rb') as stream:
+        summary = make_reader(stream).get_summary()
+    if summary is None or not summary.chunk_indexes:
+        return None
+    indexes = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    return np.array([c.message_start_time for c in indexes], dtype=float)
+
+
+def _rosbags_stream(reader: AnyReader, conns: list[Any], wanted: dict[str, str], chunk: int,
+                    after: float = -np.inf) -> Iterator[dict[str, tuple[np.ndarray, Any]]]:
+    """rosbags' log-time ordered messages of ``wanted`` logged at or after ``after`` (ns) in
+    batches of about ``chunk`` messages: topic -> (log times, raw messages)."""
+    batch: dict[str, tuple[list[int], list[bytes]]] = {t: ([], []) for t in wanted}
+    count = 0
+    for conn, log_time, raw in reader.messages(connections=conns):
+        if log_time < after:
+            continue
+        times, raws = batch[conn.topic]
+        times.append(log_time)
+        raws.append(raw)
+        count += 1
+        if count >= chunk:
+            yield {t: (np.array(ts, np.int64), rs) for t, (ts, rs) in batch.items()}
+            batch, count = {t: ([], []) for t in wanted}, 0
+    yield {t: (np.array(ts, np.int64), rs) for t, (ts, rs) in batch.items()}
+
+
+def iter_imu(path: str | Path, imu_topic: str = '/imu/data', odom_topic: str | None = '/odom',
+             gnss_topic: str | None = None, chunk: int = CHUNK) -> Iterator[ImuStream]:
+    """The accelerometer stream of a bag (with its odometry, and NavSatFix fixes of
+    ``gnss_topic`` when it is in the bag) as ImuStream pieces of about ``chunk`` IMU samples, in
+    log-time order: memory bounded by the chunk, not by the run. Every message of a piece is
+    logged before every message of the next one. Stamps: header stamps, or the log times when
+    every header stamp of the first piece with messages is zero (decided once per topic). The
+    MCAP fast path (``_McapChunks``) is taken when it can read the bag, rosbags otherwise.
+    InputError as ``read_imu`` (checked over the whole run: raised at the end)."""
+    path = Path(path)
+    with open_bag(path) as reader:
+        topics = {c.topic for c in reader.connections}
+        wanted = {imu_topic: IMU.msgtype}
+        conns = _topic_connections(reader, path, imu_topic, IMU.msgtype)
+        for topic, msgtype in ((odom_topic, ODOMETRY.msgtype), (gnss_topic, NAV_SAT_FIX)):
+            if topic is not None and topic in topics:
+                wanted[topic] = msgtype
+                conns += _topic_connections(reader, path, topic, msgtype)
+        batches = _batches(path, reader, conns, wanted, chunk)
+        yield from _imu_pieces(path, reader, wanted, imu_topic, odom_topic, gnss_topic, batches,
+                               chunk)
+
+
+def iter_topics(path: str | Path, wanted: dict[str, str], chunk: int = CHUNK
+                ) -> Iterator[dict[str, TopicData | GnssFixes]]:
+    """Batches of the ``wanted`` topics (topic -> Imu, Odometry, PointStamped, Vector3Stamped or
+    NavSatFix type; absent topics are skipped) in log-time order, decoded: topic -> TopicData
+    (GnssFixes for NavSatFix). Same paths and errors as ``iter_imu``."""
+    path = Path(path)
+    with open_bag(path) as reader:
+        topics = {c.topic for c in reader.connections}
+        wanted = {t: m for t, m in wanted.items() if t in topics}
+        conns = [c for t, m in wanted.items() for c in _topic_connections(reader, path, t, m)]
+        if not wanted:
+            return
+        for batch in _batches(path, reader, conns, wanted, chunk):
+            yield {t: _decode_batch(reader, wanted[t], times, body)
+                   for t, (times, body) in batch.items() if len(times)}
+
+
+def _decode_batch(reader: AnyReader, msgtype: str, times: np.ndarray,
+                  body: Any) -> TopicData | GnssFixes:
+    """Messages of one topic of a batch (cdr.Decoded of the fast path, or raw bytes)."""
+    if msgtype == NAV_SAT_FIX:
+        return _gnss_fixes(times, body)
+    if isinstance(body, cdr.Decoded):
+        return TopicData(times, body.stamps_ns, body.strings, body.values)
+    return _decode_raws(reader, msgtype, list(times), body)
+
+
+def _batches(path: Path, reader: AnyReader, conns: list[Any], wanted: dict[str, str],
+             chunk: int) -> Iterator[dict[str, tuple[np.ndarray, Any]]]:
+    """Batches of the MCAP fast path; if it trips (a message that is not plain CDR, ...),
+    rosbags goes on from the first message not given yet."""
+    given = -np.inf  # every message logged before this was given
+    files = _mcap_files(path)
+    if files is not None:
+        try:
+            for boundary, batch in _McapChunks(wanted).stream(files):
+                yield batch
+                given = boundary
+            return
+        except Exception as exc:  # rosbags decides (and reports)
+            if given == np.inf:
+                raise InputError(f'{path}: unreadable bag ({_one_line(exc)})') from None
+    yield from _rosbags_stream(reader, conns, wanted, chunk, given)
+
+
+def _imu_pieces(path: Path, reader: AnyReader, wanted: dict[str, str], imu_topic: str,
+                odom_topic: str | None, gnss_topic: str | None,
+                batches: Iterator[dict[str, tuple[np.ndarray, Any]]],
+                chunk: int) -> Iterator[ImuStream]:
+    """Decoded batches regrouped into ImuStream pieces of at least ``chunk`` IMU samples (the
+    last one smaller)."""
+    sources: dict[str, str] = {}
+    held: dict[str, list[TopicData | GnssFixes]] = {t: [] for t in wanted}
+    count = messages = accelerations = 0
+
+    def decode(topic: str, times: np.ndarray, body: Any) -> TopicData | GnssFixes:
+        data = _decode_batch(reader, wanted[topic], times, body)
+        if topic not in sources and isinstance(data, TopicData) and data.stamps_ns.size:
+            sources[topic] = _stamps(data)[1]
+        return data
+
+    def piece() -> ImuStream:
+        imu, odom = (_concat_topic(held[t], LAYOUTS[wanted[t]]) if t in held else None
+                     for t in (imu_topic, odom_topic))
+        gnss = GnssFixes.concat(held[gnss_topic]) if gnss_topic in held else None
+        for parts in held.values():
+            parts.clear()
+        return _imu_stream(path, imu_topic, imu, odom, sources.get(imu_topic, 'header'),
+                           sources.get(odom_topic, 'header'), gnss)
+
+    for batch in batches:
+        for topic, (times, body) in batch.items():
+            if len(times):
+                held[topic].append(decode(topic, times, body))
+        count = sum(len(p.stamps_ns) for p in held[imu_topic])
+        if count >= chunk:
+            out = piece()
+            messages += len(out.stamps_ns)
+            accelerations += _present(out)
+            yield out
+    out = piece()
+    messages += len(out.stamps_ns)
+    accelerations += _present(out)
+    if messages == 0:
+        raise InputError(f'{path}: topic {imu_topic} has no messages')
+    if accelerations == 0:
+        raise InputError(f'{path}: {imu_topic} carries no linear acceleration '
+                         '(linear_acceleration_covariance[0] is -1 or NaN)')
+    if len(out.stamps_ns) or (out.gnss is not None and len(out.gnss)) or out.speed_mps.size:
+        yield out
+
+
+def _present(stream: ImuStream) -> int:
+    """Messages that carry a linear acceleration (REP 145: covariance[0] not -1 or NaN)."""
+    first = stream.covariance[:, 0]
+    return int(np.sum((first != -1) & ~np.isnan(first)))
+
+
+def _concat_topic(parts: list[TopicData], layout: cdr.StampedLayout) -> TopicData:
+    """Pieces of one fixed-layout topic joined (empty arrays for none)."""
+    if not parts:
+        empty = cdr.decode(layout, [])
+        return TopicData(np.zeros(0, np.int64), empty.stamps_ns, empty.strings, empty.values)
+    return TopicData(np.concatenate([p.log_time_ns for p in parts]),
+                     np.concatenate([p.stamps_ns for p in parts]),
+                     tuple(np.concatenate(c) for c in zip(*(p.strings for p in parts),
+                                                          strict=True)),
+                     np.concatenate([p.values for p in parts]))
