@@ -54,10 +54,12 @@ class Band:
 
 @dataclass(frozen=True)
 class Update:
-    """What one push/flush produced: the band samples and the closed windows' records."""
+    """What one push/flush produced: the band samples, the closed windows' records and the bank
+    outputs (P, K) m of the band samples (one row per rule point)."""
 
     band: Band
     windows: list[Sensitivity]
+    bank_u_m: np.ndarray | None = None
 
 
 def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarray
@@ -135,20 +137,21 @@ class UncertaintyStream:
     ``config``: UncertaintyConfig (its ``inversion`` must equal irregularity_node's config for
     the stamps to match); ``vehicle``: nominal parameters (Table 1 by default); ``dists``:
     uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
-    ``noise_variance``: accelerometer variance for the kalman method, (m/s^2)^2.
+    ``noise_variance``: accelerometer variance for the kalman method, (m/s^2)^2; ``defer``:
+    closed windows wait for ``analyze_deferred`` (offline: their deltas run in batches).
     """
 
     def __init__(self, config: UncertaintyConfig | None = None,
                  vehicle: VehicleParams | None = None,
                  dists: Mapping[str, Distribution] | None = None,
-                 noise_variance: float | None = None) -> None:
+                 noise_variance: float | None = None, defer: bool = False) -> None:
         self.config = config if config is not None else UncertaintyConfig()
         vehicle = vehicle if vehicle is not None else VehicleParams()
         self.design = build_design(self.config, vehicle,
                                    dists if dists is not None else table3(vehicle))
         self.pipeline = InversionPipeline(self.config.inversion, self.design.theta,
                                           noise_variance)
-        self._windows = WindowAnalyzer(self.config, self.design)
+        self._windows = WindowAnalyzer(self.config, self.design, defer)
         self._quantiles = (self.config.lower_quantile, self.config.upper_quantile)
 
     @property
@@ -171,12 +174,17 @@ class UncertaintyStream:
     def flush(self) -> Update:
         """End of an offline stream (or a restart): emit every pending sample, close the window."""
         update = self._update(self.pipeline.flush())
-        return Update(update.band, update.windows + self._windows.close())
+        return Update(update.band, update.windows + self._windows.close(), update.bank_u_m)
+
+    def analyze_deferred(self) -> list[Sensitivity]:
+        """With ``defer``: the records of the windows closed so far, in order."""
+        return self._windows.analyze_deferred()
 
     def _update(self, out: Output) -> Update:
         lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m)
         band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper)
-        return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m))
+        return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m),
+                      out.u_m)
 
 
 def offline_bands(stamps_ns: np.ndarray, acc_z: np.ndarray,
