@@ -14,8 +14,9 @@ import pytest
 from railgsa_ros.bag import read_imu, write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.offline import HeldSpeed
 from railgsa_ros.review.build import ReviewOptions, build_review, write_review
-from railgsa_ros.review.stream import held_speed
+from railgsa_ros.review.grid import GridBuilder
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import save_csv
 from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
@@ -90,23 +91,29 @@ def test_the_band_is_the_uncertainty_core_band(simulated, review) -> None:
     bag, _ = simulated
     stream = read_imu(bag)
     cfg = review.config
-    band = offline_bands(stream.stamps_ns, stream.accel[:, 2],
-                         held_speed(stream.stamps_ns, stream.odom_stamps_ns, stream.speed_mps,
-                                    cfg.inversion.speed_mps),
+    speed = HeldSpeed(cfg.inversion.speed_mps, True)
+    speed.add(stream.odom_stamps_ns, stream.speed_mps)
+    band = offline_bands(stream.stamps_ns, stream.accel[:, 2], speed.at(stream.stamps_ns),
                          stream.frame_ids, cfg, dists=table3())
-    run = review.run
-    assert np.array_equal(band.stamps_ns, run.stamps_ns)
-    for name in ('lower_m', 'mean_m', 'upper_m'):
-        assert np.array_equal(getattr(band, name), getattr(run.band, name))
-    assert np.all(run.band.lower_m <= run.band.upper_m)
+    whole = GridBuilder()  # the whole band at once on the review's grid
+    whole.push(band.chainage_m, band.mean_m, np.zeros(len(band)), band.lower_m, band.upper_m)
+    expected, grid = whole.grid(), review.run.grid
+    assert np.array_equal(expected.x_m, grid.x_m)
+    for name in ('lower_m', 'upper_m'):  # float32 on the grid: 6e-8 relative
+        np.testing.assert_allclose(getattr(grid, name), getattr(expected, name),
+                                   rtol=1e-6, atol=1e-9 * MM)
+    assert np.all(grid.lower_m <= grid.upper_m)
+    assert len(review.run) == len(band)
     # windows of 10 s: four along 40 s, each QoI, every index in [0, 1]
+    run = review.run
     assert [w.qoi for w in run.windows] == ['peak', 'rms'] * 4
     assert all(np.all((w.sobol_first >= -1e-12) & (w.sobol_first <= w.sobol_total + 1e-12))
                for w in run.windows)
     worst = review.worst
     assert worst.chainage_m == pytest.approx(604.0, abs=1.0)
-    assert float(worst.result.mean) == pytest.approx(
-        run.band.mean_m[np.argmin(np.abs(run.stamps_ns - worst.stamp_ns))] / MM, rel=1e-9)
+    k = int(np.argmax(np.abs(band.mean_m)))
+    assert worst.stamp_ns == band.stamps_ns[k]
+    assert float(worst.result.mean) == pytest.approx(band.mean_m[k] / MM, rel=1e-9)
 
 
 def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: Path) -> None:
@@ -117,7 +124,8 @@ def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: 
                            'sensitivity.png', 'histogram.png', 'truth.png'}
     for name in images:
         assert (report.parent / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
-    assert sorted(p.name for p in report.parent.iterdir()) == sorted([*images, 'report.html'])
+    assert sorted(p.name for p in report.parent.iterdir()) == sorted(
+        [*images, 'report.html', 'defects.csv', 'defects.geojson', 'sections.csv'])
     counts = {level: sum(e.level == level for e in review.exceedances)
               for level in ('IAL', 'IL', 'AL')}
     assert all(counts.values())  # the three dips: one of each level at least
@@ -146,7 +154,7 @@ def test_injected_faults_appear_in_the_input_health(tmp_path: Path) -> None:
     assert counters['gap'] == 1 and counters['reset'] == 1  # 0.3 s > max_bridge_s 0.2 s
     assert imu.gaps == 1 and imu.longest_gap_s == pytest.approx(0.301, abs=1e-6)
     assert imu.backwards == 1 and imu.count == 12000 - 300
-    assert review.run.band is None and review.worst is None
+    assert review.run.design is None and review.worst is None
 
 
 def test_cli_writes_the_report_and_draws_progress_only_when_asked(simulated, tmp_path: Path,
@@ -241,6 +249,6 @@ def test_without_odometry_the_configured_speed_is_used(tmp_path: Path) -> None:
         speed_mps=25.0))
     review = build_review(ReviewOptions(bag, config))
     assert review.health.odom is None
-    assert np.all(review.run.speed_mps == 25.0)
-    assert review.run.chainage_m[-1] == pytest.approx(run.chainage_m[-1] - run.chainage_m[0],
-                                                      abs=0.1)
+    grid = review.run.grid
+    assert np.all(grid.speed_mps[grid.valid] == 25.0)
+    assert review.run.last[1] == pytest.approx(run.chainage_m[-1] - run.chainage_m[0], abs=0.1)

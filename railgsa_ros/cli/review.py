@@ -45,6 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='end of the EN 13848-5 AL/IL ranges to apply (default lower: strictest)')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
     p.add_argument('--odom-topic', default='/odom', metavar='T', help='default /odom')
+    add_location_options(p)
+    p.add_argument('--json', action='store_true',
+                   help='print a JSON summary (counts, worst defect, files written) on stdout')
     p.add_argument('--overwrite', action='store_true', help='replace an existing DIR')
     bar = p.add_mutually_exclusive_group()
     bar.add_argument('--progress', dest='progress', action='store_const', const=True,
@@ -52,6 +55,42 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     bar.add_argument('--no-progress', dest='progress', action='store_const', const=False,
                      help='never draw the progress bar')
     p.set_defaults(func=run, progress=None)
+
+
+LOCATION_KEYS = ('line', 'track', 'direction', 'km_origin')  # params-file keys, as the nodes'
+
+
+def add_location_options(p: argparse.ArgumentParser) -> None:
+    """--line, --track, --direction, --km-origin, --gnss-topic (railgsa review and invert)."""
+    from railgsa_ros.location import DIRECTIONS
+
+    p.add_argument('--line', help='line id (default: the params file line, else empty)')
+    p.add_argument('--track', help='track id (default: the params file track, else empty)')
+    p.add_argument('--direction', choices=DIRECTIONS,
+                   help='km-posts increase or decrease along the run (default increasing)')
+    p.add_argument('--km-origin', type=float, metavar='KM',
+                   help='km-post of the run start, chainage 0 (default 0)')
+    p.add_argument('--gnss-topic', default='/gnss/fix', metavar='T',
+                   help='sensor_msgs/NavSatFix topic, used when present (default /gnss/fix)')
+
+
+def reference(args: argparse.Namespace, params: dict[str, Any]) -> Any:
+    """The location reference: the options, else the params file's keys, else defaults."""
+    from railgsa_ros.location import Reference
+
+    values = {k: params[k] for k in LOCATION_KEYS if k in params}
+    for key in LOCATION_KEYS:
+        if getattr(args, key) is not None:
+            values[key] = getattr(args, key)
+    if 'km_origin' in values:
+        try:
+            values['km_origin'] = float(values['km_origin'])
+        except (TypeError, ValueError):
+            from railgsa_ros.errors import ConfigError
+
+            raise ConfigError(f'km_origin: expected a number of km, got '
+                              f'{values["km_origin"]!r}') from None
+    return Reference(**{k: v if k == 'km_origin' else str(v) for k, v in values.items()})
 
 
 def parameters(args: argparse.Namespace) -> dict[str, Any]:
@@ -98,7 +137,8 @@ def build_options(args: argparse.Namespace) -> Any:
     return ReviewOptions(Path(args.bag), config, vehicle, dists,
                          Path(args.truth) if args.truth else None, args.limit_end,
                          imu_topic=args.imu_topic, odom_topic=args.odom_topic,
-                         rate_from_bag='rate_hz' not in params)
+                         rate_from_bag='rate_hz' not in params, gnss_topic=args.gnss_topic,
+                         reference=reference(args, params))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,6 +159,13 @@ def run(args: argparse.Namespace) -> int:
                               lambda stage, f: bar.update(round(1000 * f), f'{stage:<10}'))
     finally:
         bar.close()
+    if args.json:
+        import json
+
+        from railgsa_ros.review.outputs import summary
+
+        print(json.dumps(summary(review, report), indent=1))
+        return 0
     levels = ', '.join(f'{k} {v}' for k, v in describe_counts(review.exceedances).items())
     total = sum(review.timings.values())
     print(f'{report}\n  {review.duration_s:.1f} s of data reviewed in {total:.1f} s '

@@ -11,18 +11,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 import time
 
-import numpy as np
-
-from railgsa_ros.bag import read_imu
-from railgsa_ros.errors import InputError
 from railgsa_ros.fileio import atomic_output
+from railgsa_ros.location import Location, Reference
+from railgsa_ros.offline import Source
 from railgsa_ros.review import figures
-from railgsa_ros.review.exceedances import Exceedance, find_exceedances
+from railgsa_ros.review.exceedances import Exceedance
 from railgsa_ros.review.figures import ZOOM_M
-from railgsa_ros.review.health import InputHealth, input_health, stamp_stats
+from railgsa_ros.review.health import InputHealth
 from railgsa_ros.review.limits import Limits, en13848_limits
+from railgsa_ros.review.outputs import write_outputs
 from railgsa_ros.review.report import render_html
-from railgsa_ros.review.sections import Sections, section_sd
+from railgsa_ros.review.sections import Sections, grid_sections, section_sd
 from railgsa_ros.review.stream import ReviewRun, run_stream
 from railgsa_ros.review.truth import DX_M, Comparison, compare, load_truth
 from railgsa_ros.review.worst import WorstSurrogate, plot_worst, worst_surrogate
@@ -38,8 +37,8 @@ Progress = Callable[[str, float], None]  # (stage, fraction done)
 class ReviewOptions:
     """What to review and how: bag (and truth) paths, the uncertainty node's configuration
     (inversion included), nominal vehicle, uncertain parameters (None: no band), limit end
-    ('lower'/'upper' of the AL/IL ranges), section length (m), topics, and whether the IMU rate
-    comes from the bag."""
+    ('lower'/'upper' of the AL/IL ranges), section length (m), topics, whether the IMU rate
+    comes from the bag, and the location reference (line, track, direction, km-post)."""
 
     bag: Path
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
@@ -51,6 +50,13 @@ class ReviewOptions:
     imu_topic: str = '/imu/data'
     odom_topic: str = '/odom'
     rate_from_bag: bool = True  # replace config.inversion.rate_hz by the bag's median rate
+    gnss_topic: str = '/gnss/fix'
+    reference: Reference = field(default_factory=Reference)
+
+    @property
+    def source(self) -> Source:
+        """The bag and its topics."""
+        return Source(self.bag, self.imu_topic, self.odom_topic, self.gnss_topic)
 
 
 @dataclass(frozen=True)
@@ -61,7 +67,6 @@ class Review:
     options: ReviewOptions
     config: UncertaintyConfig
     run: ReviewRun
-    imu_stamps_ns: np.ndarray
     health: InputHealth
     limits: Limits
     exceedances: list[Exceedance]
@@ -76,9 +81,14 @@ class Review:
         """Span of the IMU stamps (s)."""
         return self.health.imu.span_s
 
+    @property
+    def location(self) -> Location:
+        """Where the run is (reference, odometry scale, GNSS track)."""
+        return self.run.location
+
 
 def build_review(options: ReviewOptions, progress: Progress | None = None) -> Review:
-    """Read, stream and analyse; InputError naming the file for unusable bags or truth."""
+    """Stream and analyse; InputError naming the file for unusable bags or truth."""
     def tick(stage: str, fraction: float) -> None:
         if progress is not None:
             progress(stage, fraction)
@@ -87,40 +97,28 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     start = time.perf_counter()
     tick('reading', 0.0)
     limits = en13848_limits(options.config.inversion.band, options.limit_end)
-    stream = read_imu(options.bag, options.imu_topic, options.odom_topic)
     truth = load_truth(options.truth) if options.truth is not None else None
-    timings['read'] = time.perf_counter() - start
-    imu = stamp_stats(stream.stamps_ns, options.config.inversion.gap_factor)
-    if not np.isfinite(imu.rate_hz):
-        raise InputError(f'{options.bag}: {options.imu_topic} needs at least two distinct stamps')
-    cfg = options.config
-    if options.rate_from_bag:
-        cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=imu.rate_hz))
-    total = stream.stamps_ns.size
-    run = run_stream(stream, cfg, options.vehicle, options.dists,
-                     progress=lambda done: tick('processing', done / total))
-    timings['stream'] = time.perf_counter() - start - timings['read']
+    total = max(options.source.count(options.imu_topic), 1)
+    run, cfg = run_stream(options.source, options.config, options.vehicle, options.dists,
+                          limits, options.reference, options.rate_from_bag, options.section_m,
+                          progress=lambda done: tick('processing', min(done / total, 1.0)))
+    timings['stream'] = time.perf_counter() - start
     tick('analysing', 1.0)
     mark = time.perf_counter()
-    inv = cfg.inversion
-    health = input_health(stream.stamps_ns, stream.odom_stamps_ns, stream.speed_mps,
-                          run.counters, inv.gap_factor, stream.stamp_source)
-    band = run.band
-    exceedances = find_exceedances(run.chainage_m, run.u_m, run.speed_mps, run.stamps_ns, limits,
-                                   None if band is None else band.lower_m,
-                                   None if band is None else band.upper_m)
-    sections = section_sd(run.chainage_m, run.u_m, run.speed_mps, options.section_m)
+    grid = run.grid
+    sections = grid_sections(grid.x_m, grid.u_m, grid.valid, run.section_speeds,
+                             options.section_m, grid.dx_m)
     comparison = truth_sections = None
     if truth is not None:
-        truth = truth.aligned(int(run.stamps_ns[0]), float(run.chainage_m[0]))
-        comparison = compare(run.chainage_m, run.u_m, truth, inv.band)
+        truth = truth.aligned(*run.first)
+        comparison = compare(grid.x_m[grid.valid], grid.u_m[grid.valid], truth, cfg.inversion.band)
         truth_sections = section_sd(comparison.x_m, comparison.truth_m, None, options.section_m,
                                     max_step_m=2 * DX_M)
     worst = None
     if run.worst is not None and run.design is not None:
         worst = worst_surrogate(run.design, run.worst, cfg)
     timings['analyse'] = time.perf_counter() - mark
-    return Review(options, cfg, run, stream.stamps_ns, health, limits, exceedances, sections,
+    return Review(options, cfg, run, run.health, limits, run.exceedances, sections,
                   truth_sections, comparison, worst, timings)
 
 
@@ -136,23 +134,22 @@ def closeup_centres(review: Review, count: int = 4) -> tuple[list[float], list[s
         return ([e.peak_m for e in picked],
                 [f'{e.level} ({e.confidence}) at {e.peak_m:.1f} m: {e.peak_u_m * 1e3:+.2f} mm'
                  for e in picked])
-    k = int(np.argmax(np.abs(review.run.u_m)))
-    x = float(review.run.chainage_m[k])
-    return [x], [f'largest |u| at {x:.1f} m: {review.run.u_m[k] * 1e3:+.2f} mm (no exceedance)']
+    peak = review.run.peak
+    return [peak.chainage_m], [f'largest |u| at {peak.chainage_m:.1f} m: '
+                               f'{peak.value_m * 1e3:+.2f} mm (no exceedance)']
 
 
 def draw_figures(review: Review, folder: Path) -> dict[str, str]:
     """Every PNG of the report into ``folder``; returns figure key -> file name."""
     run, q = review.run, (review.config.lower_quantile, review.config.upper_quantile)
     made = {
-        'overview': figures.plot_overview(folder / 'overview.png', run, review.limits,
+        'overview': figures.plot_overview(folder / 'overview.png', run.grid, review.limits,
                                           review.exceedances, q),
-        'closeups': figures.plot_closeups(folder / 'closeups.png', run, review.limits,
+        'closeups': figures.plot_closeups(folder / 'closeups.png', run.grid, review.limits,
                                           *closeup_centres(review), q),
         'sections': figures.plot_sections(folder / 'sections.png', review.sections,
                                           review.limits, review.truth_sections),
-        'health': figures.plot_health(folder / 'health.png', review.imu_stamps_ns,
-                                      review.health),
+        'health': figures.plot_health(folder / 'health.png', review.health),
     }
     if run.windows:
         made['sensitivity'] = figures.plot_sensitivity(folder / 'sensitivity.png', run.windows)
@@ -166,13 +163,15 @@ def draw_figures(review: Review, folder: Path) -> dict[str, str]:
 
 def write_review(review: Review, out_dir: str | Path, overwrite: bool = False,
                  progress: Progress | None = None) -> Path:
-    """Write DIR/report.html and its PNGs atomically; returns the report's path."""
+    """Write DIR/report.html with its PNGs, defects.csv, defects.geojson and sections.csv
+    atomically; returns the report's path."""
     start = time.perf_counter()
     with atomic_output(out_dir, overwrite) as tmp:
         tmp.mkdir()
         if progress is not None:
             progress('drawing', 1.0)
         names = draw_figures(review, tmp)
+        write_outputs(review, tmp)
         review.timings['figures'] = time.perf_counter() - start
         (tmp / REPORT).write_text(render_html(review, names), encoding='utf-8')
     return Path(out_dir) / REPORT

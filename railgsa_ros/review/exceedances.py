@@ -16,12 +16,15 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
 from railgsa_ros.review.limits import LEVELS, Limits
+from railgsa_ros.uncertainty.surrogate import Design
 
 CONFIDENCES = ('certain', 'likely', 'possible')
+PROBABILITY_BLOCK = 256  # samples per surrogate evaluation (2 MB at 1024 germ samples)
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,7 @@ class Exceedance:
     upper_m: float
     limit_m: float
     speed_kmh: float
+    probability: float = float('nan')  # of being beyond the limit (surrogate band), NaN without
 
     @property
     def severity(self) -> int:
@@ -67,16 +71,111 @@ def levels(magnitude: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     return np.max(np.where(passed, np.arange(1, 4), 0), axis=1, initial=0)
 
 
-def _runs(mask: np.ndarray, chainage: np.ndarray, sign: np.ndarray,
-          merge_m: float) -> tuple[np.ndarray, ...]:
-    """Sample indices of the masked samples, and for each run its first position in them: a
-    run ends where the sign changes or the next masked sample lies more than merge_m away."""
-    idx = np.flatnonzero(mask)
-    if idx.size == 0:
-        return idx, idx
-    split = ((np.diff(idx) > 1) & (np.diff(chainage[idx]) > merge_m)) | \
-        (np.diff(sign[idx]) != 0)
-    return idx, np.concatenate([[0], np.flatnonzero(split) + 1])
+_FIELDS = ('index', 'chainage', 'stamp', 'u', 'far', 'lvl_c', 'lvl_near', 'lvl_far', 'lower',
+           'upper', 'speed', 'al', 'il', 'ial', 'p_al', 'p_il', 'p_ial')
+_LIMITS = ('al', 'il', 'ial')
+
+
+def beyond_probability(design: Design, bank_u_m: np.ndarray, thresholds: np.ndarray
+                       ) -> np.ndarray:
+    """Probability (K, 3) that |u| passes each limit (K, 3) m, from bank outputs (P, K): the
+    fraction of the surrogate's germ samples (``design.germ_basis``, the samples the band's
+    quantiles come from) beyond it."""
+    coef = design.projector @ bank_u_m  # (T, K)
+    out = np.empty((coef.shape[1], 3))
+    for lo in range(0, out.shape[0], PROBABILITY_BLOCK):  # (block, S) values at a time
+        sl = slice(lo, lo + PROBABILITY_BLOCK)
+        values = np.abs(coef[0, sl, None] + coef[1:, sl].T @ design.germ_basis)
+        with np.errstate(invalid='ignore'):
+            out[sl] = np.mean(values[:, None, :] > thresholds[sl, :, None], axis=2)
+    return out
+
+
+class ExceedanceTracker:
+    """Exceedances of a run that streams in chunks (emission order, chainage increasing): the
+    closed ones come out of ``push``, the last open one out of ``close``. Only the samples
+    beyond a limit are looked at, and of the run still open only the few that decide its
+    record (first, last, peak candidates, worst levels): memory does not grow with the run.
+    The records equal those of the whole run at once (``find_exceedances``)."""
+
+    def __init__(self, limits: Limits, merge_m: float = 1.0,
+                 design: Design | None = None) -> None:
+        self.limits = limits
+        self.merge_m = float(merge_m)
+        self.design = design  # with bank outputs: the probability of each exceedance
+        self._seen = 0  # samples pushed so far: global sample indices
+        self._open: dict[str, np.ndarray] | None = None  # deciding samples of the open run
+
+    def push(self, chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
+             stamps_ns: np.ndarray, lower_m: np.ndarray | None = None,
+             upper_m: np.ndarray | None = None,
+             bank_u_m: np.ndarray | None = None) -> list[Exceedance]:
+        """Samples (K,) (bank outputs (P, K) with a design); returns the exceedances that ended
+        before them."""
+        u = np.asarray(u_m, dtype=float)
+        thresholds = self.limits.at(speed_mps)
+        near, far = magnitudes(u, lower_m, upper_m)
+        lvl_c, lvl_near, lvl_far = (levels(m, thresholds) for m in (np.abs(u), near, far))
+        sel = np.flatnonzero(lvl_far > 0)
+        cols = {'index': self._seen + sel, 'chainage': np.asarray(chainage_m, float)[sel],
+                'stamp': np.asarray(stamps_ns)[sel], 'u': u[sel], 'far': far[sel],
+                'lvl_c': lvl_c[sel], 'lvl_near': lvl_near[sel], 'lvl_far': lvl_far[sel],
+                'lower': (u if lower_m is None else np.asarray(lower_m, float))[sel],
+                'upper': (u if upper_m is None else np.asarray(upper_m, float))[sel],
+                'speed': np.asarray(speed_mps, float)[sel],
+                **{k: thresholds[sel, j] for j, k in enumerate(_LIMITS)}}
+        prob = np.full((sel.size, 3), np.nan)
+        if self.design is not None and bank_u_m is not None and sel.size:
+            prob = beyond_probability(self.design, bank_u_m[:, sel], thresholds[sel])
+        cols.update({f'p_{k}': prob[:, j] for j, k in enumerate(_LIMITS)})
+        self._seen += u.size
+        held = 0 if self._open is None else self._open['index'].size
+        if held:
+            cols = {k: np.concatenate([self._open[k], cols[k]]) for k in _FIELDS}
+        if cols['index'].size == 0:
+            return []
+        idx = cols['index']
+        split = ((np.diff(idx) > 1) & (np.diff(cols['chainage']) > self.merge_m)) | \
+            (np.diff(np.sign(cols['u'])) != 0)
+        split[:max(held - 1, 0)] = False  # the held samples are one run
+        starts = np.concatenate([[0], np.flatnonzero(split) + 1])
+        closed = [_record({k: v[a:b] for k, v in cols.items()})
+                  for a, b in pairwise(starts)]
+        last = {k: v[starts[-1]:] for k, v in cols.items()}
+        self._open = {k: v[_deciding(last)] for k, v in last.items()}
+        return closed
+
+    def close(self) -> list[Exceedance]:
+        """The exceedance still open at the end of the run (if any)."""
+        last, self._open = self._open, None
+        return [] if last is None else [_record(last)]
+
+
+def _peak_key(run: dict[str, np.ndarray]) -> np.ndarray:
+    """Peak: largest central magnitude in the run; when it passes nothing, the farthest edge."""
+    return np.abs(run['u']) if run['lvl_c'].max() > 0 else run['far']
+
+
+def _deciding(run: dict[str, np.ndarray]) -> np.ndarray:
+    """Indices of the samples that decide a run's record, whatever follows: first, last, and
+    the first maximum of each level and of both peak keys."""
+    keys = (run['lvl_c'], run['lvl_near'], run['lvl_far'], np.abs(run['u']), run['far'])
+    return np.unique([0, run['u'].size - 1, *(int(np.argmax(k)) for k in keys)])
+
+
+def _record(run: dict[str, np.ndarray]) -> Exceedance:
+    """The exceedance of one run of samples beyond a limit."""
+    worst_c, worst_near, worst_far = (int(run[k].max()) for k in ('lvl_c', 'lvl_near', 'lvl_far'))
+    level = worst_c if worst_c > 0 else worst_far
+    confidence = ('possible' if worst_c == 0 else
+                  'certain' if worst_near >= worst_c else 'likely')
+    k = int(np.argmax(_peak_key(run)))
+    limit = run[_LIMITS[level - 1]][k]
+    return Exceedance(LEVELS[level - 1], confidence, float(run['chainage'][0]),
+                      float(run['chainage'][-1]), float(run['chainage'][k]),
+                      int(run['stamp'][k]), float(run['u'][k]), float(run['lower'][k]),
+                      float(run['upper'][k]), float(limit), float(abs(run['speed'][k]) * 3.6),
+                      float(run[f'p_{_LIMITS[level - 1]}'][k]))
 
 
 def find_exceedances(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
@@ -84,33 +183,9 @@ def find_exceedances(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndar
                      upper_m: np.ndarray | None = None, merge_m: float = 1.0
                      ) -> list[Exceedance]:
     """Exceedances along a run (all inputs (K,), chainage increasing), in chainage order."""
-    u = np.asarray(u_m, dtype=float)
-    thresholds = limits.at(speed_mps)
-    near, far = magnitudes(u, lower_m, upper_m)
-    lvl_c, lvl_near, lvl_far = (levels(m, thresholds) for m in (np.abs(u), near, far))
-    idx, starts = _runs(lvl_far > 0, np.asarray(chainage_m), np.sign(u), merge_m)
-    if idx.size == 0:
-        return []
-    run = np.repeat(np.arange(starts.size), np.diff(np.concatenate([starts, [idx.size]])))
-    worst_c, worst_near, worst_far = (np.maximum.reduceat(x[idx], starts)
-                                      for x in (lvl_c, lvl_near, lvl_far))
-    # peak: largest central magnitude in the run; when it passes nothing, the farthest edge
-    key = np.where(worst_c[run] > 0, np.abs(u[idx]), far[idx])
-    peak = idx[np.lexsort((-key, run))[starts]]
-    ends = idx[np.concatenate([starts[1:], [idx.size]]) - 1]
-    lo = u if lower_m is None else np.asarray(lower_m, dtype=float)
-    hi = u if upper_m is None else np.asarray(upper_m, dtype=float)
-    out = []
-    for r in range(starts.size):
-        level = worst_c[r] if worst_c[r] > 0 else worst_far[r]
-        confidence = ('possible' if worst_c[r] == 0 else
-                      'certain' if worst_near[r] >= worst_c[r] else 'likely')
-        k = peak[r]
-        out.append(Exceedance(LEVELS[level - 1], confidence, float(chainage_m[idx[starts[r]]]),
-                              float(chainage_m[ends[r]]), float(chainage_m[k]),
-                              int(stamps_ns[k]), float(u[k]), float(lo[k]), float(hi[k]),
-                              float(thresholds[k, level - 1]), float(abs(speed_mps[k]) * 3.6)))
-    return out
+    tracker = ExceedanceTracker(limits, merge_m)
+    return tracker.push(chainage_m, u_m, speed_mps, stamps_ns, lower_m, upper_m) + \
+        tracker.close()
 
 
 def count_by_level(exceedances: list[Exceedance]) -> dict[str, Counter[str]]:

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from railgsa_ros.review.exceedances import Exceedance
+from railgsa_ros.review.grid import Grid
 from railgsa_ros.review.health import InputHealth
 from railgsa_ros.review.limits import LEVELS, Limits
 from railgsa_ros.review.sections import Sections
-from railgsa_ros.review.stream import ReviewRun
 from railgsa_ros.review.truth import Comparison
 from railgsa_ros.uncertainty import Sensitivity
 from railgsa_ros.uq.plots import draw_histogram
@@ -110,16 +110,17 @@ def _band_label(quantiles: tuple[float, float]) -> str:
     return f'{100 * quantiles[0]:g}-{100 * quantiles[1]:g} % band'
 
 
-def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[Exceedance],
+def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exceedance],
                   quantiles: tuple[float, float]) -> Path:
-    """Irregularity over chainage with the band, the limits and the exceedances; speed below."""
+    """Irregularity over chainage (the run's 0.25 m grid) with the band, the limits and the
+    exceedances (at their exact peaks); speed below."""
     fig = _figure(11.0, 5.0, rows=2)
     ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(5, 1))
-    x = run.chainage_m
-    if run.band is not None:
-        _band(ax, x, run.band.lower_m * MM, run.band.upper_m * MM, _band_label(quantiles))
-    _signal(ax, x, run.u_m * MM, color=LINE_COLOUR, label='reconstruction')
-    _limit_lines(ax, x, limits.at(run.speed_mps))
+    x = grid.x_m
+    if grid.has_band:
+        _band(ax, x, grid.lower_m * MM, grid.upper_m * MM, _band_label(quantiles))
+    _signal(ax, x, grid.u_m * MM, color=LINE_COLOUR, label='reconstruction')
+    _limit_lines(ax, x, limits.at(grid.speed_mps))
     for level in LEVELS:
         picked = [e for e in exceedances if e.level == level]
         for sure in (True, False):  # filled: certain or likely, hollow: possible
@@ -133,27 +134,26 @@ def plot_overview(path: Path, run: ReviewRun, limits: Limits, exceedances: list[
     ax.set_ylabel(f'irregularity {limits.band.upper()} [mm]')
     ax.grid(alpha=0.3)
     ax.legend(loc='upper right', fontsize=8, ncol=4)
-    _signal(ax_v, x, run.speed_mps * 3.6, color='0.3')
+    _signal(ax_v, x, grid.speed_mps * 3.6, color='0.3')
     ax_v.set_ylabel('speed [km/h]')
     ax_v.set_xlabel('chainage [m]')
     ax_v.grid(alpha=0.3)
     return _save(fig, path)
 
 
-def plot_closeups(path: Path, run: ReviewRun, limits: Limits, centres: Sequence[float],
+def plot_closeups(path: Path, grid: Grid, limits: Limits, centres: Sequence[float],
                   titles: Sequence[str], quantiles: tuple[float, float]) -> Path:
-    """Close-ups of +-ZOOM_M around each centre chainage (m), every sample drawn."""
+    """Close-ups of +-ZOOM_M around each centre chainage (m), every grid cell drawn."""
     rows = -(-len(centres) // 2)
     fig = _figure(11.0, 2.6 * rows, rows, 2, top=0.3, row_gap=0.85, col_gap=0.7)
     axes = np.atleast_1d(fig.subplots(rows, 2, squeeze=False)).ravel()
-    x = run.chainage_m
     for ax, centre, title in zip(axes, centres, titles, strict=False):
-        sel = (x >= centre - ZOOM_M) & (x <= centre + ZOOM_M)
-        if run.band is not None:
-            ax.fill_between(x[sel], run.band.lower_m[sel] * MM, run.band.upper_m[sel] * MM,
-                            color=BAND_COLOUR, alpha=0.5, lw=0, label=_band_label(quantiles))
-        ax.plot(x[sel], run.u_m[sel] * MM, color=LINE_COLOUR, lw=1.0, label='reconstruction')
-        _limit_lines(ax, x[sel], limits.at(run.speed_mps[sel]))
+        g = grid.window(centre - ZOOM_M, centre + ZOOM_M)
+        if g.has_band:
+            ax.fill_between(g.x_m, g.lower_m * MM, g.upper_m * MM, color=BAND_COLOUR, alpha=0.5,
+                            lw=0, label=_band_label(quantiles))
+        ax.plot(g.x_m, g.u_m * MM, color=LINE_COLOUR, lw=1.0, label='reconstruction')
+        _limit_lines(ax, g.x_m, limits.at(g.speed_mps))
         ax.set_title(title, fontsize=9)
         ax.set_xlabel('chainage [m]')
         ax.set_ylabel('mm')
@@ -169,6 +169,11 @@ def plot_sections(path: Path, sections: Sections, limits: Limits,
     """SD per section as bars against the EN 13848-5 alert range of each section's class."""
     fig = _figure(11.0, 3.6, right=0.35)
     ax = fig.subplots()
+    if len(sections) == 0:  # a run shorter than half a section
+        ax.text(0.5, 0.5, f'no {sections.length_m:g} m section covered by half or more',
+                ha='center', va='center', transform=ax.transAxes)
+        ax.set_axis_off()
+        return _save(fig, path)
     sd_range = limits.sd_at(sections.speed_mps) * MM
     sd = sections.sd_m * MM
     sd_range[np.isnan(sd)] = np.nan
@@ -226,31 +231,30 @@ def plot_sensitivity(path: Path, windows: list[Sensitivity]) -> Path:
     return _save(fig, path)
 
 
-def plot_health(path: Path, stamps_ns: np.ndarray, health: InputHealth) -> Path:
-    """IMU samples per second with the gaps, the distribution of the jitter, and the rejected
-    samples."""
+def plot_health(path: Path, health: InputHealth) -> Path:
+    """IMU messages per second of log time with the gaps, the distribution of the jitter, and
+    the rejected samples."""
     fig = _figure(11.0, 5.0, 2, 2, top=0.1, row_gap=0.8, col_gap=1.2)
     grid = fig.add_gridspec(2, 2)
     ax_t = fig.add_subplot(grid[0, :])
-    t = (np.asarray(stamps_ns) - np.min(stamps_ns)) * 1e-9
-    per_second = np.bincount(t.astype(np.int64))[:max(int(t.max()), 1)]  # whole seconds
+    trace = health.imu_trace
+    per_second = trace.per_second[:max(trace.per_second.size - 1, 1)]  # whole seconds
     ax_t.step(np.arange(per_second.size), per_second, where='post', color=LINE_COLOUR, lw=0.9,
               label='IMU samples per second')
-    step = np.diff(stamps_ns) * 1e-6
-    period = 1e3 / health.imu.rate_hz
-    gaps = np.flatnonzero(step > health.gap_factor * period)
-    if gaps.size:
-        ax_t.plot(t[gaps], np.full(gaps.size, health.imu.rate_hz), 'v', color='#c92a2a', ms=6,
-                  label=f'gap ({gaps.size}, longest {health.imu.longest_gap_s * 1e3:.0f} ms)')
-    ax_t.set_ylim(0, 1.15 * max(per_second.max(), health.imu.rate_hz))
-    ax_t.set_xlabel('time since the first IMU stamp [s]')
+    if trace.gap_log_s:
+        ax_t.plot(trace.gap_log_s, np.full(len(trace.gap_log_s), health.imu.rate_hz), 'v',
+                  color='#c92a2a', ms=6,
+                  label=f'gap ({health.imu.gaps}, longest {health.imu.longest_gap_s * 1e3:.0f} '
+                        'ms)')
+    ax_t.set_ylim(0, 1.15 * max(per_second.max(initial=0), health.imu.rate_hz))
+    ax_t.set_xlabel('log time since the first IMU message [s]')
     ax_t.set_ylabel('samples per second')
     ax_t.legend(fontsize=8, loc='lower right')
     ax_t.grid(alpha=0.3)
     ax_j = fig.add_subplot(grid[1, 0])
-    period = 1e3 / health.imu.rate_hz
-    regular = step[(step > 0) & (step <= 3 * period)] - period
-    ax_j.hist(regular * 1e3, bins=80, histtype='stepfilled', color='0.5', log=True)  # 1 patch
+    edges = np.linspace(*trace.jitter_range_s, trace.jitter_counts.size + 1) * 1e6
+    ax_j.stairs(trace.jitter_counts, edges, fill=True, color='0.5')  # one patch
+    ax_j.set_yscale('log')
     ax_j.set_xlabel('step - nominal period [us]')
     ax_j.set_ylabel('steps')
     ax_r = fig.add_subplot(grid[1, 1])

@@ -35,26 +35,120 @@ class StampStats:
 
 def stamp_stats(stamps_ns: np.ndarray, gap_factor: float = 3.0) -> StampStats:
     """Statistics of a stamp sequence (ns) in arrival order."""
-    t = np.asarray(stamps_ns, dtype=np.int64)
-    if t.size < 2:
-        return StampStats(int(t.size), 0.0, *(np.nan,) * 4, 0, 0.0, 0.0, 0)
-    step = np.diff(t) * 1e-9
-    forward = step[step > 0]
-    period = float(np.median(forward)) if forward.size else np.nan
-    gap = step > gap_factor * period
-    regular = forward[forward <= gap_factor * period] - period
-    span = float(t.max() - t.min()) * 1e-9
-    return StampStats(int(t.size), span, 1.0 / period, (t.size - 1) / span if span else np.nan,
-                      float(np.std(regular)) if regular.size else np.nan,
-                      float(np.max(np.abs(regular))) if regular.size else np.nan,
-                      int(gap.sum()), float(step[gap].max()) if gap.any() else 0.0,
-                      float(np.sum(step[gap] - period)), int(np.sum(step <= 0)))
+    acc = StampAccumulator(gap_factor)
+    acc.push(stamps_ns)
+    return acc.stats()
+
+
+JITTER_BINS = 80
+MAX_GAP_MARKS = 10_000  # gap positions kept for the figure (the count is exact)
+
+
+class StampAccumulator:
+    """Stamp statistics of a topic that streams in chunks (``stamp_stats`` of all of it at
+    once). The nominal period is the median positive step of the first chunk with one (65 s
+    at 1 kHz: the period the pipeline uses too). For the health figure it also counts the
+    messages per second of log time (bounded by the recording's length, whatever the
+    stamps), keeps the log times of the first MAX_GAP_MARKS gaps and a histogram of the jitter
+    in JITTER_BINS bins from -1 to gap_factor - 1 periods."""
+
+    def __init__(self, gap_factor: float = 3.0) -> None:
+        self.gap_factor = float(gap_factor)
+        self.count = 0
+        self.period_s = np.nan
+        self._last: int | None = None
+        self._lo, self._hi = np.iinfo(np.int64).max, np.iinfo(np.int64).min
+        self._sums = np.zeros(3)  # regular steps: count, sum and sum of squares of the jitter
+        self._jitter_max = np.nan
+        self._gaps, self._longest, self._lost, self._backwards = 0, 0.0, 0.0, 0
+        self._pending = np.zeros(0)  # steps before the period is known
+        self._first_log: int | None = None
+        self.per_second = np.zeros(0, np.int64)
+        self.gap_log_s: list[float] = []
+        self.jitter_counts = np.zeros(JITTER_BINS, np.int64)
+
+    def push(self, stamps_ns: np.ndarray, log_time_ns: np.ndarray | None = None) -> None:
+        """Stamps (K,) ns in arrival order, with their log times (K,) ns for the figure."""
+        t = np.asarray(stamps_ns, dtype=np.int64)
+        if t.size == 0:
+            return
+        self.count += t.size
+        self._lo, self._hi = min(self._lo, int(t.min())), max(self._hi, int(t.max()))
+        prev = t if self._last is None else np.concatenate([[self._last], t])
+        self._last = int(t[-1])
+        step = np.diff(prev) * 1e-9
+        logs = None
+        if log_time_ns is not None:
+            logs = np.asarray(log_time_ns, dtype=np.int64)
+            self._per_second(logs)
+            logs = logs[-step.size:] if step.size else logs[:0]
+        if np.isnan(self.period_s):
+            forward = step[step > 0]
+            if forward.size == 0:
+                self._pending = np.concatenate([self._pending, step])
+                return
+            self.period_s = float(np.median(forward))
+            step = np.concatenate([self._pending, step])
+            if logs is not None and self._pending.size:
+                logs = np.concatenate([np.full(self._pending.size, logs[0]), logs])
+            self._pending = np.zeros(0)
+        self._steps(step, logs)
+
+    def _per_second(self, logs: np.ndarray) -> None:
+        if self._first_log is None:
+            self._first_log = int(logs[0])
+        sec = (logs - self._first_log) // 1_000_000_000
+        sec = sec[sec >= 0]
+        if sec.size:
+            counts = np.bincount(sec)
+            if counts.size > self.per_second.size:
+                self.per_second = np.concatenate(
+                    [self.per_second, np.zeros(counts.size - self.per_second.size, np.int64)])
+            self.per_second[:counts.size] += counts
+
+    def _steps(self, step: np.ndarray, logs: np.ndarray | None) -> None:
+        period = self.period_s
+        gap = step > self.gap_factor * period
+        regular = step[(step > 0) & ~gap] - period
+        self._sums += (regular.size, regular.sum(), np.sum(regular ** 2))
+        if regular.size:
+            self._jitter_max = np.fmax(self._jitter_max, float(np.max(np.abs(regular))))
+        self.jitter_counts += np.histogram(regular, JITTER_BINS, self.jitter_range_s)[0]
+        if gap.any():
+            self._gaps += int(gap.sum())
+            self._longest = max(self._longest, float(step[gap].max()))
+            self._lost += float(np.sum(step[gap] - period))
+            if logs is not None and self._first_log is not None:
+                room = MAX_GAP_MARKS - len(self.gap_log_s)
+                self.gap_log_s += ((logs[gap][:room] - self._first_log) * 1e-9).tolist()
+        self._backwards += int(np.sum(step <= 0))
+
+    @property
+    def jitter_range_s(self) -> tuple[float, float]:
+        """Range (s) of the jitter histogram."""
+        return -self.period_s, (self.gap_factor - 1) * self.period_s
+
+    def stats(self) -> StampStats:
+        """The statistics of everything pushed."""
+        if self.count < 2:
+            return StampStats(self.count, 0.0, *(np.nan,) * 4, 0, 0.0, 0.0, 0)
+        if np.isnan(self.period_s):  # no forward step at all
+            return StampStats(self.count, 0.0, *(np.nan,) * 4, 0, 0.0, 0.0,
+                              int(self._pending.size))
+        n, total, squares = self._sums
+        std = float(np.sqrt(max(squares / n - (total / n) ** 2, 0.0))) if n else np.nan
+        span = (self._hi - self._lo) * 1e-9
+        return StampStats(self.count, span, 1.0 / self.period_s,
+                          (self.count - 1) / span if span else np.nan, std,
+                          float(self._jitter_max), self._gaps, self._longest, self._lost,
+                          self._backwards)
 
 
 @dataclass(frozen=True)
 class InputHealth:
     """IMU and odometry stamp statistics, speed range (m/s), stamp source, the gap threshold
-    (nominal periods) and the pipeline counters (rejected by reason, gaps, resets, emitted)."""
+    (nominal periods), the pipeline counters (rejected by reason, gaps, resets, emitted) and the
+    IMU accumulator with the figure's series (messages per second, gaps, jitter histogram)."""
 
     imu: StampStats
     odom: StampStats | None
@@ -63,6 +157,7 @@ class InputHealth:
     stamp_source: str
     gap_factor: float
     counters: dict[str, int] = field(default_factory=dict)
+    imu_trace: StampAccumulator | None = None
 
     @property
     def rejected(self) -> dict[str, int]:
@@ -75,13 +170,38 @@ class InputHealth:
         return sum(self.rejected.values())
 
 
+class HealthAccumulator:
+    """Input health of a run that streams in chunks: the IMU and odometry stamps and the speed
+    range of the odometry."""
+
+    def __init__(self, gap_factor: float = 3.0) -> None:
+        self.gap_factor = float(gap_factor)
+        self.imu = StampAccumulator(gap_factor)
+        self.odom = StampAccumulator(gap_factor)
+        self.speed_range = [np.inf, -np.inf]
+
+    def push(self, imu_stamps_ns: np.ndarray, imu_log_ns: np.ndarray | None,
+             odom_stamps_ns: np.ndarray, speed_mps: np.ndarray) -> None:
+        """One chunk of IMU stamps (with log times) and of odometry."""
+        self.imu.push(imu_stamps_ns, imu_log_ns)
+        self.odom.push(odom_stamps_ns)
+        speed = np.asarray(speed_mps, dtype=float)
+        finite = speed[np.isfinite(speed)]
+        if finite.size:
+            self.speed_range = [min(self.speed_range[0], float(finite.min())),
+                                max(self.speed_range[1], float(finite.max()))]
+
+    def health(self, counters: dict[str, int], stamp_source: str = 'header') -> InputHealth:
+        """The health of everything pushed, with the pipeline's counters."""
+        lo, hi = self.speed_range if np.isfinite(self.speed_range[0]) else (np.nan, np.nan)
+        return InputHealth(self.imu.stats(), self.odom.stats() if self.odom.count else None,
+                           lo, hi, stamp_source, self.gap_factor, dict(counters), self.imu)
+
+
 def input_health(imu_stamps_ns: np.ndarray, odom_stamps_ns: np.ndarray, speed_mps: np.ndarray,
                  counters: dict[str, int], gap_factor: float = 3.0,
                  stamp_source: str = 'header') -> InputHealth:
     """Health of an IMU stream with its odometry (empty arrays when the bag has none)."""
-    odom = stamp_stats(odom_stamps_ns, gap_factor) if np.size(odom_stamps_ns) else None
-    speed = np.asarray(speed_mps, dtype=float)
-    finite = speed[np.isfinite(speed)]
-    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (np.nan, np.nan)
-    return InputHealth(stamp_stats(imu_stamps_ns, gap_factor), odom, lo, hi, stamp_source,
-                       gap_factor, dict(counters))
+    acc = HealthAccumulator(gap_factor)
+    acc.push(imu_stamps_ns, None, odom_stamps_ns, speed_mps)
+    return acc.health(counters, stamp_source)

@@ -14,7 +14,7 @@ import numpy as np
 
 from railgsa_ros import __version__
 from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level, describe_counts
-from railgsa_ros.review.limits import CLASS_UPPER_KMH, LEVELS, SOURCE, class_label, speed_class
+from railgsa_ros.review.limits import CLASS_UPPER_KMH, LEVELS, SOURCE, class_label
 
 if TYPE_CHECKING:
     from railgsa_ros.review.build import Review
@@ -63,23 +63,29 @@ def _figure(names: dict[str, str], key: str, alt: str) -> str:
     return f'<img src="{escape(names[key])}" alt="{escape(alt)}">' if key in names else ''
 
 
-def _speed_classes(speed_mps: np.ndarray) -> str:
-    """'80 < v <= 120 km/h (100 %)' for the classes met, by share of samples."""
-    idx = speed_class(speed_mps)
-    values, counts = np.unique(idx, return_counts=True)
-    order = np.argsort(-counts)
-    return ', '.join(f'{class_label(int(values[i]))} ({100 * counts[i] / idx.size:.0f} %)'
-                     for i in order)
+def _speed_classes(class_counts: np.ndarray) -> str:
+    """'80 < v <= 120 km/h (100 %)' for the classes met, by share of samples (counts per
+    class, the last one beyond the table)."""
+    values = np.flatnonzero(class_counts)
+    order = values[np.argsort(-class_counts[values], kind='stable')]
+    labels = [*range(class_counts.size - 1), -1]
+    return ', '.join(f'{class_label(labels[i])} ({100 * class_counts[i] / class_counts.sum():.0f}'
+                     ' %)' for i in order)
+
+
+def _km(review: Review, chainage_m: float) -> str:
+    """'km 12.345 (345.0 m)': the km-post of a chainage, with the chainage."""
+    return f'km {float(review.location.reference.km(chainage_m)):.3f} ({chainage_m:.1f} m)'
 
 
 def _summary(review: Review) -> str:
     run, health = review.run, review.health
-    length = float(run.chainage_m[-1] - run.chainage_m[0])
-    v = run.speed_mps * 3.6
-    k = int(np.argmax(np.abs(run.u_m)))
+    length = run.length_m
+    v = run.grid.speed_mps[run.grid.valid] * 3.6
+    peak = run.peak
     worst_level = next((e for e in sorted(review.exceedances, key=lambda e: -e.severity)
-                        if e.start_m <= run.chainage_m[k] <= e.end_m), None)
-    worst = f'{run.u_m[k] * MM:+.2f} mm at {run.chainage_m[k]:.1f} m'
+                        if e.start_m <= peak.chainage_m <= e.end_m), None)
+    worst = f'{peak.value_m * MM:+.2f} mm at {_km(review, peak.chainage_m)}'
     if worst_level is not None:
         worst += f' (<span class={worst_level.level}>{worst_level.level}</span>)'
     exc = '<br>'.join(f'<span class={level}>{level}</span> {text}'
@@ -89,19 +95,19 @@ def _summary(review: Review) -> str:
         _card('run', f'{length / 1e3:.2f} km in {review.duration_s:.1f} s'),
         _card('speed', (f'{np.min(v):.0f}' if np.ptp(v) < 0.5 else
                         f'{np.min(v):.0f}-{np.max(v):.0f} (mean {np.mean(v):.0f})')
-              + f' km/h; class {escape(_speed_classes(run.speed_mps))}'),
+              + f' km/h; class {escape(_speed_classes(run.class_counts))}'),
         _card('worst defect', worst),
         _card('EN 13848-5 exceedances', exc),
         _card(f'SD per {review.sections.length_m:g} m',
               f'max {_mm(np.nanmax(sd)) if np.any(np.isfinite(sd)) else "-"} mm '
               f'over {np.sum(np.isfinite(sd))} sections'),
     ]
-    if run.band is not None:
-        width = (run.band.upper_m - run.band.lower_m) * MM
-        j = int(np.argmax(width))
+    if run.widest is not None:
+        width = (run.grid.upper_m - run.grid.lower_m)[run.grid.valid] * MM
         cards.append(_card('uncertainty (band width)',
-                           f'median {np.median(width):.2f} mm, max {width[j]:.2f} mm at '
-                           f'{run.chainage_m[j]:.0f} m'))
+                           f'median {np.median(width):.2f} mm (0.25 m grid), max '
+                           f'{run.widest.value_m * MM:.2f} mm at '
+                           f'{_km(review, run.widest.chainage_m)}'))
     cards.append(_card('input', f'{health.imu.count} IMU samples at {health.imu.rate_hz:.0f} Hz, '
                                 f'{health.rejected_total} rejected, {health.imu.gaps} gaps'))
     if review.comparison is not None:
@@ -180,7 +186,7 @@ EN 13848-5 informative annex values from secondary sources [M].</p>
 
 def _uncertainty_section(review: Review, names: dict[str, str]) -> str:
     run, cfg = review.run, review.config
-    if run.band is None:
+    if run.design is None:
         return '<h2>3. Uncertainty and sensitivity</h2><p>No uncertain parameters: no band.</p>'
     parts = [f'<h2>3. Uncertainty and sensitivity</h2>'
              f'<p class=note>Band: {100 * cfg.lower_quantile:g}-{100 * cfg.upper_quantile:g} % '
@@ -269,7 +275,7 @@ def _footer(review: Review) -> str:
 def render_html(review: Review, names: dict[str, str]) -> str:
     """The report page; ``names`` maps figure keys to PNG file names in the same directory."""
     bag = review.options.bag
-    start = datetime.fromtimestamp(int(review.imu_stamps_ns[0]) / 1e9, UTC)
+    start = datetime.fromtimestamp(review.run.first[0] / 1e9, UTC)
     body = '\n'.join([
         f'<h1>Track irregularity review: {escape(bag.name)}</h1>',
         f'<p class=sub>{escape(str(bag))} &middot; first stamp {start:%Y-%m-%d %H:%M:%S} UTC '

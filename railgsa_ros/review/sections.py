@@ -50,7 +50,54 @@ def section_sd(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray | 
     c = np.asarray(chainage_m, dtype=float)
     if c.size < 2:
         return Sections(length_m, *(np.zeros(0) for _ in range(4)))
-    x, u, valid = resample(c, u_m, dx, max_step_m)
+    speeds = None
+    if speed_mps is not None:
+        speeds = SectionSpeeds(length_m)
+        speeds.push(c, speed_mps)
+    return grid_sections(*resample(c, u_m, dx, max_step_m), speeds, length_m, dx, min_coverage)
+
+
+class SectionSpeeds:
+    """Mean |speed| (m/s) per section of the samples' chainage, accumulated chunk by chunk."""
+
+    def __init__(self, length_m: float = SECTION_M) -> None:
+        self.length_m = float(length_m)
+        self._sums: dict[int, list[float]] = {}  # section index -> [sum |v|, count]
+
+    def push(self, chainage_m: np.ndarray, speed_mps: np.ndarray) -> None:
+        """Samples (K,)."""
+        c = np.asarray(chainage_m, dtype=float)
+        ok = np.isfinite(c)
+        if not ok.any():
+            return
+        which, inverse = np.unique(np.floor(c[ok] / self.length_m).astype(np.int64),
+                                   return_inverse=True)
+        sums = np.bincount(inverse, np.abs(np.asarray(speed_mps, float)[ok]), which.size)
+        counts = np.bincount(inverse, minlength=which.size)
+        for k, total, n in zip(which.tolist(), sums.tolist(), counts.tolist(), strict=True):
+            acc = self._sums.setdefault(k, [0.0, 0])
+            acc[0] += total
+            acc[1] += n
+
+    def means(self, first: int, count: int) -> np.ndarray:
+        """Mean speed of sections first .. first + count - 1 (samples outside the range count
+        for the end sections; NaN without samples)."""
+        sums, counts = np.zeros(count), np.zeros(count)
+        for k, (total, n) in self._sums.items():
+            i = min(max(k - first, 0), count - 1)
+            sums[i] += total
+            counts[i] += n
+        with np.errstate(invalid='ignore', divide='ignore'):
+            return sums / counts
+
+
+def grid_sections(x: np.ndarray, u: np.ndarray, valid: np.ndarray,
+                  speeds: SectionSpeeds | None = None, length_m: float = SECTION_M,
+                  dx: float = DX_M, min_coverage: float = 0.5) -> Sections:
+    """SD per section of a signal on cells of dx m (centres x (N,), values u (N,), valid (N,));
+    the section speeds from ``speeds`` (NaN without)."""
+    if x.size == 0:
+        return Sections(length_m, *(np.zeros(0) for _ in range(4)))
     sec = np.floor(x / length_m).astype(np.int64)
     first = sec[0]
     n_sec = sec[-1] - first + 1
@@ -62,11 +109,7 @@ def section_sd(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray | 
     with np.errstate(invalid='ignore', divide='ignore'):
         mean = s1 / n
         sd = np.sqrt(np.maximum(s2 / n - mean ** 2, 0.0))
-        if speed_mps is None:
-            speed = np.full(n_sec, np.nan)
-        else:
-            k = np.clip(np.floor(c / length_m).astype(np.int64) - first, 0, n_sec - 1)
-            speed = np.bincount(k, np.abs(speed_mps), n_sec) / np.bincount(k, minlength=n_sec)
+    speed = np.full(n_sec, np.nan) if speeds is None else speeds.means(int(first), int(n_sec))
     short = coverage < min_coverage
     sd[short] = np.nan
     kept = np.flatnonzero(~short)

@@ -1,32 +1,52 @@
-"""The nodes' streaming core run offline over a recorded IMU stream, in chunks, without DDS.
+"""The nodes' streaming core run offline over a bag (``railgsa_ros.offline``), reduced to what
+a review shows while it streams: nothing of the run is kept per sample.
 
-Two streams see the same chunks: the nominal ``InversionPipeline`` (``irregularity_node``: the
-reconstruction) and the rule-point bank of ``uncertainty_node``, composed from the pieces of
-:class:`~railgsa_ros.uncertainty.UncertaintyStream` (the design, ``band_statistics`` and the
-``WindowAnalyzer``) so that the bank outputs at the worst sample can be kept for its histogram.
-The two outputs carry the same stamps one to one (the bank only emits later); they are joined on
-the stamps at the end. Speed: the newest odometry sample at or before each stamp (held), the
-configured speed when the bag has no odometry.
+Per chunk of emitted samples the review updates bounded summaries:
+
+- the run on a 0.25 m chainage grid (``grid.GridBuilder``: reconstruction, band, speed; 84 bytes
+  per metre of run) for the figures, the 200 m sections and the truth comparison;
+- the exceedances (``exceedances.ExceedanceTracker``: only the samples beyond a limit of the run
+  still open are looked at);
+- the mean speed per section, the largest |u|, the widest band, the sample count per speed
+  class, the first and last output;
+- the input health (``health.HealthAccumulator``: stamp statistics, messages per second);
+- the sample of largest |PCE mean| with its bank outputs (the histogram), and the window
+  records (deferred windows: a few numbers each).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError
-from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
-from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig
-from railgsa_ros.uncertainty.stream import band_statistics
-from railgsa_ros.uncertainty.surrogate import Design, build_design
-from railgsa_ros.uncertainty.windows import WindowAnalyzer
+from railgsa_ros.location import Location, Reference
+from railgsa_ros.offline import (
+    Driver,
+    HeldSpeed,
+    Source,
+    Step,
+    chunks,
+    locate,
+    noise_variance,
+    nominal_rate_hz,
+    peek,
+    steps,
+)
+from railgsa_ros.review.exceedances import Exceedance, ExceedanceTracker
+from railgsa_ros.review.grid import DX_M, Grid, GridBuilder
+from railgsa_ros.review.health import HealthAccumulator, InputHealth
+from railgsa_ros.review.limits import CLASS_UPPER_KMH, Limits, speed_class
+from railgsa_ros.review.sections import SECTION_M, SectionSpeeds
+from railgsa_ros.uncertainty import Sensitivity, UncertaintyConfig
+from railgsa_ros.uncertainty.surrogate import Design
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import VehicleParams
 
-CHUNK = 65536  # IMU samples per push (as railgsa invert)
+MAX_JUMP_M = 100e3  # chainage step between two emitted samples that cannot be a real run
 
 
 @dataclass(frozen=True)
@@ -41,113 +61,156 @@ class Worst:
 
 
 @dataclass(frozen=True)
-class ReviewRun:
-    """Result of one offline run, per emitted sample (K,): stamps (ns), chainage (m), speed (m/s),
-    nominal reconstruction u (m); the band (lower/mean/upper, same stamps) or None; window
-    sensitivity records; the worst sample; the nominal pipeline's counters and band delay."""
+class Extreme:
+    """One sample: stamp (ns), chainage (m) and a value (m)."""
 
-    stamps_ns: np.ndarray
-    chainage_m: np.ndarray
-    speed_mps: np.ndarray
-    u_m: np.ndarray
-    band: Band | None
+    stamp_ns: int
+    chainage_m: float
+    value_m: float
+
+
+@dataclass(frozen=True)
+class ReviewRun:
+    """What a review keeps of a run: the chainage grid, the exceedances, the section speeds,
+    the largest |u| and widest band, samples per speed class (classes of ``CLASS_UPPER_KMH``,
+    then beyond the table), the first and last output (stamp ns, chainage m), the emitted count,
+    the input health, the window records, the worst sample and design of the band (None
+    without), the pipeline's counters and band delay, the imu stamps' source and the location.
+    """
+
+    grid: Grid
+    exceedances: list[Exceedance]
+    section_speeds: SectionSpeeds
+    peak: Extreme
+    widest: Extreme | None
+    class_counts: np.ndarray
+    first: tuple[int, float]
+    last: tuple[int, float]
+    emitted: int
+    health: InputHealth
     windows: list[Sensitivity]
     worst: Worst | None
     design: Design | None
     counters: dict[str, int]
     delay_samples: int
+    location: Location
 
     def __len__(self) -> int:
-        return int(self.stamps_ns.size)
+        return self.emitted
+
+    @property
+    def length_m(self) -> float:
+        """Chainage from the first to the last output (m)."""
+        return self.last[1] - self.first[1]
 
 
-def held_speed(stamps_ns: np.ndarray, odom_stamps_ns: np.ndarray, odom_speed_mps: np.ndarray,
-               default_mps: float) -> np.ndarray:
-    """Speed (m/s) at each stamp: the newest odometry at or before it (the first one before the
-    odometry starts); ``default_mps`` everywhere when there is no odometry."""
-    if odom_stamps_ns.size == 0:
-        return np.full(np.shape(stamps_ns), float(default_mps))
-    order = np.argsort(odom_stamps_ns, kind='stable')
-    idx = np.searchsorted(odom_stamps_ns[order], stamps_ns, side='right') - 1
-    return odom_speed_mps[order][np.clip(idx, 0, None)]
+class _Summaries:
+    """The bounded summaries of the module docstring, updated step by step."""
 
-
-class _Bank:
-    """The uncertainty node's bank: pipeline over the rule points, band, windows, worst sample."""
-
-    def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
-                 dists: Mapping[str, Distribution], noise_variance: float | None) -> None:
-        self.design = build_design(config, vehicle, dists)
-        self.pipeline = InversionPipeline(config.inversion, self.design.theta, noise_variance)
-        self.windows = WindowAnalyzer(config, self.design, defer=True)
-        self.quantiles = (config.lower_quantile, config.upper_quantile)
-        self.bands: list[Band] = []
-        self.records: list[Sensitivity] = []
+    def __init__(self, source: Source, limits: Limits, section_m: float,
+                 design: Design | None) -> None:
+        self.source = source
+        self.grid = GridBuilder(DX_M)
+        self.tracker = ExceedanceTracker(limits, design=design)
+        self.exceedances: list[Exceedance] = []
+        self.speeds = SectionSpeeds(section_m)
+        self.classes = np.zeros(CLASS_UPPER_KMH.size + 1, np.int64)
+        self.peak: Extreme | None = None
+        self.widest: Extreme | None = None
         self.worst: Worst | None = None
+        self.first: tuple[int, float] | None = None
+        self.last: tuple[int, float] = (0, 0.0)
+        self.emitted = 0
 
-    def take(self, out: Output) -> None:
-        """Band, windows and worst sample of one pipeline output."""
-        if len(out) == 0:
-            return
-        lower, mean, upper = band_statistics(self.design, self.quantiles, out.u_m)
-        self.bands.append(Band(out.stamps_ns, out.chainage_m, lower, mean, upper))
-        self.windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m)
-        k = int(np.argmax(np.abs(mean)))
-        if self.worst is None or abs(mean[k]) > abs(self.worst.mean_m):
-            self.worst = Worst(int(out.stamps_ns[k]), float(out.chainage_m[k]), float(mean[k]),
-                               out.u_m[:, k].copy())
+    def take(self, step: Step) -> None:
+        c = step.chainage_m
+        previous = np.concatenate([[self.last[1]], c]) if self.first is not None else c
+        jump = np.abs(np.diff(previous))
+        if jump.size and np.nanmax(jump) > MAX_JUMP_M:
+            k = int(np.nanargmax(jump)) + (c.size - jump.size)
+            raise InputError(f'{self.source.bag}: the chainage jumps by {jump.max() / 1e3:.0f} km '
+                             f'at the IMU stamp {int(step.stamps_ns[min(k, c.size - 1)])} ns '
+                             '(stamps far from their neighbours: zero or corrupt header stamps?)')
+        if self.first is None:
+            self.first = (int(step.stamps_ns[0]), float(c[0]))
+        self.last = (int(step.stamps_ns[-1]), float(c[-1]))
+        self.emitted += len(step)
+        band = step.band
+        lower = upper = None
+        if band is not None:
+            lower, upper = band.lower_m, band.upper_m
+        self.grid.push(c, step.u_m, step.speed_mps, lower, upper)
+        self.exceedances += self.tracker.push(c, step.u_m, step.speed_mps, step.stamps_ns,
+                                              lower, upper, step.bank_u_m)
+        self.speeds.push(c, step.speed_mps)
+        self.classes += np.bincount(speed_class(step.speed_mps) % self.classes.size,
+                                    minlength=self.classes.size)
+        self.peak = _larger(self.peak, step.stamps_ns, c, step.u_m, np.abs(step.u_m))
+        if band is not None:
+            self.widest = _larger(self.widest, step.stamps_ns, c, upper - lower, upper - lower)
+            k = int(np.argmax(np.abs(band.mean_m)))
+            if self.worst is None or abs(band.mean_m[k]) > abs(self.worst.mean_m):
+                self.worst = Worst(int(step.stamps_ns[k]), float(c[k]), float(band.mean_m[k]),
+                                   step.bank_u_m[:, k].copy())
 
-    def finish(self) -> None:
-        """Close the last window; the delta estimates of all windows, in batches."""
-        self.windows.close()
-        self.records = self.windows.analyze_deferred()
+
+def _larger(best: Extreme | None, stamps: np.ndarray, chainage: np.ndarray,
+            values: np.ndarray, key: np.ndarray) -> Extreme:
+    """The sample of largest key (the earlier on ties) against the best so far."""
+    k = int(np.nanargmax(key)) if np.any(np.isfinite(key)) else 0
+    if best is not None and not key[k] > abs(best.value_m):
+        return best
+    return Extreme(int(stamps[k]), float(chainage[k]), float(values[k]))
 
 
-def _noise_variance(stream: ImuStream, config: UncertaintyConfig) -> float | None:
-    """Median recorded accelerometer variance on the vertical axis ((m/s^2)^2), None if none."""
+def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams,
+               dists: Mapping[str, Distribution] | None, limits: Limits,
+               reference: Reference | None = None, rate_from_bag: bool = True,
+               section_m: float = SECTION_M, chunk: int | None = None,
+               progress: Callable[[int], None] | None = None) -> tuple[ReviewRun,
+                                                                         UncertaintyConfig]:
+    """Stream the bag through the driver (nominal pipeline, and the bank unless ``dists`` is
+    None) and summarise it; returns the run and the configuration in effect (the IMU rate from
+    the first chunk when ``rate_from_bag``). With GNSS in the bag, a first pass over the
+    odometry and the fixes locates the run (``location.gnss_pass``). ``progress(IMU samples
+    read)`` after each chunk."""
+    first, pieces = peek(chunks(source, chunk))
+    location = locate(source, int(first.stamps_ns[0]) if first.stamps_ns.size else 0,
+                      reference or Reference())
     inv = config.inversion
-    var = stream.accel_variance(inv.noise_std_mps2 ** 2)[:, 'xyz'.index(inv.accel_axis[-1])]
-    known = var[np.isfinite(var)]
-    return float(np.median(known)) if known.size else None
+    if rate_from_bag:
+        config = config.with_(inversion=inv.with_(rate_hz=nominal_rate_hz(first, source)))
+        inv = config.inversion
+    has_odometry = source.odom_topic in source.topics()
+    speed = HeldSpeed(inv.speed_mps, has_odometry, location.scale.value)
+    driver = Driver(config, vehicle, dists, noise_variance(first, inv.accel_axis,
+                                                           inv.noise_std_mps2), speed)
+    health = HealthAccumulator(inv.gap_factor)
+    summaries = _Summaries(source, limits, section_m,
+                           driver.bank.design if driver.bank is not None else None)
 
+    def watched(pieces: Iterator[ImuStream]) -> Iterator[ImuStream]:
+        for piece in pieces:
+            health.push(piece.stamps_ns, piece.log_time_ns, piece.odom_stamps_ns,
+                        piece.speed_mps)
+            yield piece
 
-def run_stream(stream: ImuStream, config: UncertaintyConfig, vehicle: VehicleParams,
-               dists: Mapping[str, Distribution] | None, chunk: int = CHUNK,
-               progress: Callable[[int], None] | None = None) -> ReviewRun:
-    """Push ``stream`` through the nominal pipeline (and the bank unless ``dists`` is None) in
-    chunks of ``chunk`` samples; ``progress(samples_done)`` after each chunk."""
-    inv = config.inversion
-    variance = _noise_variance(stream, config)
-    nominal = InversionPipeline(inv, vehicle, variance)
-    bank = _Bank(config, vehicle, dists, variance) if dists is not None else None
-    speed = held_speed(stream.stamps_ns, stream.odom_stamps_ns, stream.speed_mps, inv.speed_mps)
-    acc = vertical(stream.accel, inv.accel_axis)
-    outs = []
-    for lo in range(0, stream.stamps_ns.size, chunk):
-        sl = slice(lo, lo + chunk)
-        args = (stream.stamps_ns[sl], acc[sl], speed[sl], stream.frame_ids[sl])
-        outs.append(nominal.push(*args))
-        if bank is not None:
-            bank.take(bank.pipeline.push(*args))
-        if progress is not None:
-            progress(min(lo + chunk, stream.stamps_ns.size))
-    outs.append(nominal.flush())
-    out = Output(*(np.concatenate([getattr(o, f) for o in outs])
-                   for f in ('stamps_ns', 'chainage_m', 'u_m')))
-    if len(out) == 0:
-        raise InputError(f'{stream.path}: no usable IMU sample (rejected: '
-                         f'{_rejections(nominal.counters)})')
-    band = None
-    if bank is not None:
-        bank.take(bank.pipeline.flush())
-        bank.finish()
-        band = Band.concat(bank.bands)
-        if not np.array_equal(band.stamps_ns, out.stamps_ns):
-            raise AssertionError('band and irregularity stamps differ')
-    out_speed = held_speed(out.stamps_ns, stream.odom_stamps_ns, stream.speed_mps, inv.speed_mps)
-    return ReviewRun(out.stamps_ns, out.chainage_m, out_speed, out.u_m, band,
-                     bank.records if bank else [], bank.worst if bank else None,
-                     bank.design if bank else None, nominal.counters, nominal.delay_samples)
+    for step in steps(driver, watched(pieces), progress):
+        summaries.take(step)
+    if summaries.first is None:
+        raise InputError(f'{source.bag}: no usable IMU sample (rejected: '
+                         f'{_rejections(driver.counters)})')
+    grid = summaries.grid.grid()
+    if not grid.valid.any():
+        raise InputError(f'{source.bag}: the chainage never advances by {DX_M:g} m without a gap '
+                         '(standstill, negative odometry speed or no odometry)')
+    exceedances = summaries.exceedances + summaries.tracker.close()
+    windows = driver.windows()
+    return ReviewRun(grid, exceedances, summaries.speeds, summaries.peak, summaries.widest,
+                     summaries.classes, summaries.first, summaries.last, summaries.emitted,
+                     health.health(driver.counters, first.stamp_source), windows,
+                     summaries.worst, driver.bank.design if driver.bank else None,
+                     driver.counters, driver.delay_samples, location), config
 
 
 def _rejections(counters: dict[str, int]) -> str:

@@ -82,6 +82,8 @@ def compare(chainage_m: np.ndarray, u_m: np.ndarray, truth: Truth, band: str) ->
     """Score the reconstruction against the truth in ``band`` (RMSE, correlation, peak error at
     the largest defect of the band-filtered truth); InputError when they barely overlap."""
     lo = max(chainage_m[0], truth.chainage_m[0])
+    lo = (np.ceil(lo / DX_M - 0.5) + 0.5) * DX_M  # on the review's grid: no second interpolation
+    chainage_m, u_m = chainage_m[chainage_m >= lo - 1e-9], u_m[chainage_m >= lo - 1e-9]
     hi = min(chainage_m[-1], truth.chainage_m[-1])
     if hi - lo <= 2 * MARGIN_M + DEFECT_M:
         raise InputError(f'{truth.source}: the truth overlaps the run over {max(hi - lo, 0):.0f} '

@@ -1,0 +1,131 @@
+"""A run resampled on a fixed chainage grid while it streams: what the review keeps instead of
+every sample.
+
+Cell i is centred at (i + 1/2) dx m of chainage (dx = 0.25 m, as EN 13848 samples at <= 0.5 m).
+A cell takes the linear interpolation between the two consecutive samples whose chainage
+brackets its centre (c_a < x <= c_b), as ``np.interp`` of the whole run would, and counts as
+valid when they lie less than ``max_step_m`` apart (a gap in the data is not bridged). Pairs that
+do not advance (standstill, c_b <= c_a) fill no cell. The grid holds the reconstruction (float64),
+the band's lower and upper quantiles and the speed (float32: for the figures only) and the
+validity: 21 bytes per cell, 84 bytes per metre of run, whatever the sample rate (10 h at
+30 m/s: 1,080 km, 91 MB).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+DX_M = 0.25
+MAX_STEP_M = 1.0
+BLOCK = 1 << 16  # cells per storage block (16 km at 0.25 m)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The cells of a run: centres x_m (N,), u_m (N,), lower_m and upper_m (N,) (NaN without a
+    band), speed_mps (N,), valid (N,); invalid cells hold NaN."""
+
+    dx_m: float
+    x_m: np.ndarray
+    u_m: np.ndarray
+    lower_m: np.ndarray
+    upper_m: np.ndarray
+    speed_mps: np.ndarray
+    valid: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.x_m.size)
+
+    @property
+    def has_band(self) -> bool:
+        """Whether the run had an uncertainty band."""
+        return bool(np.any(np.isfinite(self.lower_m)))
+
+    def window(self, lo_m: float, hi_m: float) -> Grid:
+        """The cells with centres in [lo_m, hi_m]."""
+        i = np.searchsorted(self.x_m, lo_m, side='left')
+        j = np.searchsorted(self.x_m, hi_m, side='right')
+        return Grid(self.dx_m, *(getattr(self, f)[i:j] for f in
+                                 ('x_m', 'u_m', 'lower_m', 'upper_m', 'speed_mps', 'valid')))
+
+
+class GridBuilder:
+    """Streams samples (chainage, u, speed[, lower, upper]) into a :class:`Grid`; the last
+    sample of a chunk is kept to interpolate across chunk boundaries. The cells live in blocks
+    of BLOCK cells allocated as the run reaches them (no copies as it grows)."""
+
+    def __init__(self, dx_m: float = DX_M, max_step_m: float = MAX_STEP_M) -> None:
+        self.dx_m = float(dx_m)
+        self.max_step_m = float(max_step_m)
+        self._blocks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._last: tuple[float, ...] | None = None
+
+    def push(self, chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
+             lower_m: np.ndarray | None = None, upper_m: np.ndarray | None = None) -> None:
+        """Samples (K,) in emission order."""
+        if np.size(chainage_m) == 0:
+            return
+        nan = np.full(np.shape(u_m), np.nan)
+        cols = [np.asarray(chainage_m, float), np.asarray(u_m, float),
+                nan if lower_m is None else lower_m, nan if upper_m is None else upper_m,
+                np.asarray(speed_mps, float)]  # chainage, then the cells' values in order
+        if self._last is not None:
+            cols = [np.concatenate([[v], c]) for v, c in zip(self._last, cols, strict=True)]
+        self._last = tuple(float(c[-1]) for c in cols)
+        c = cols[0]
+        lo, hi = c[:-1], c[1:]
+        with np.errstate(invalid='ignore'):
+            ok = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+            first = np.where(ok, np.floor(lo / self.dx_m - 0.5), 0).astype(np.int64) + 1
+            last = np.where(ok, np.floor(hi / self.dx_m - 0.5), 0).astype(np.int64)
+        count = np.where(ok, np.maximum(last - first + 1, 0), 0)
+        if not count.any():
+            return
+        pair = np.repeat(np.arange(lo.size), count)
+        cell = first[pair] + (np.arange(pair.size) - np.repeat(np.cumsum(count) - count, count))
+        x = (cell + 0.5) * self.dx_m
+        t = (x - lo[pair]) / (hi[pair] - lo[pair])
+        values = [v[pair] + t * (v[pair + 1] - v[pair]) for v in cols[1:]]
+        valid = (hi - lo)[pair] < self.max_step_m
+        self._store(cell, values, valid)
+
+    def _store(self, cell: np.ndarray, values: list[np.ndarray], valid: np.ndarray) -> None:
+        block, offset = np.divmod(cell, BLOCK)
+        cuts = np.flatnonzero(np.diff(block)) + 1
+        for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [cell.size]]),
+                          strict=True):
+            u, f32, ok = self._block(int(block[lo]))
+            at, good = offset[lo:hi], valid[lo:hi]
+            u[at] = np.where(good, values[0][lo:hi], np.nan)
+            f32[at] = np.where(good[:, None], np.column_stack([v[lo:hi] for v in values[1:]]),
+                               np.nan)
+            ok[at] = good
+
+    def _block(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if index not in self._blocks:
+            self._blocks[index] = (np.full(BLOCK, np.nan), np.full((BLOCK, 3), np.nan,
+                                                                    np.float32),
+                                   np.zeros(BLOCK, bool))
+        return self._blocks[index]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the cells."""
+        return sum(a.nbytes for b in self._blocks.values() for a in b)
+
+    def grid(self) -> Grid:
+        """The cells from the first to the last one reached (blocks never reached: invalid)."""
+        if not self._blocks:
+            empty = np.zeros(0)
+            return Grid(self.dx_m, empty, empty, empty, empty, empty, np.zeros(0, bool))
+        lo, hi = min(self._blocks), max(self._blocks)
+        blocks = [self._block(i) for i in range(lo, hi + 1)]
+        valid = np.concatenate([b[2] for b in blocks])
+        kept = np.flatnonzero(valid)
+        keep = slice(kept[0], kept[-1] + 1) if kept.size else slice(0, 0)
+        f32 = np.concatenate([b[1] for b in blocks])[keep]
+        x = (lo * BLOCK + np.arange(valid.size)[keep] + 0.5) * self.dx_m
+        return Grid(self.dx_m, x, np.concatenate([b[0] for b in blocks])[keep],
+                    *(f32[:, j].astype(float) for j in range(3)), valid[keep])
