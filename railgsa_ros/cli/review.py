@@ -104,7 +104,8 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
     params: dict[str, Any] = {}
     if args.params:
         known = {f.name for f in (*fields(UncertaintyConfig), *fields(InversionConfig))
-                 if f.name != 'inversion'} | {'vehicle_file', 'uncertainty_file'}
+                 if f.name != 'inversion'} | {'vehicle_file', 'uncertainty_file',
+                                              *LOCATION_KEYS}
         params = read_params(args.params, ('irregularity_node', 'uncertainty_node'), known,
                              'review')
     for name in ('method', 'band'):
