@@ -224,3 +224,53 @@ def test_cli_loop_stops_cleanly_on_signal(sig: int, tmp_path: Path, ros_context:
             proc.kill()
     assert proc.returncode == 0 and 'Traceback' not in err
     assert 'published' in err.strip().splitlines()[-1]
+
+
+def write_with_malformed(path: Path, n: int, bad: dict[int, bytes]) -> list[bytes]:
+    """n good Imu at 1 kHz on /imu/data with ``bad`` (index -> bytes) in between; returns
+    the good messages in order."""
+    from rosbags.rosbag2 import Writer
+    from test_playback_bags import IMU, PERIOD, imu_cdr
+
+    good = []
+    with Writer(path, version=9) as writer:
+        imu = writer.add_connection('/imu/data', IMU, typestore=typestore())
+        for i in range(n):
+            data = bad.get(i, imu_cdr(i))
+            writer.write(imu, T0 + i * PERIOD, data)
+            if i not in bad:
+                good.append(data)
+    return good
+
+
+def test_malformed_messages_are_counted_and_never_published(tmp_path: Path, ros_context: Any,
+                                                            spin: Any, capfd: Any) -> None:
+    """A 0-byte and a truncated Imu in the bag stalled a RELIABLE subscriber: they are skipped
+    and counted; a typed RELIABLE subscriber (as a node) gets every good message."""
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from test_playback_bags import imu_cdr
+
+    from railgsa_ros.playback.source import BagSource
+
+    bad = {100: b'', 500: imu_cdr(500)[:40], 501: b'\x00\x01\x00\x00'}
+    good = write_with_malformed(tmp_path / 'bag', 1000, bad)
+    with BagSource(tmp_path / 'bag') as source:  # ROS-free: the skip and the count
+        assert [d for _, _, d in source.messages(['/imu/data'])] == good
+        assert source.malformed == {'/imu/data': 3}
+    got: list[Any] = []
+    sink = Node('typed_sink', context=ros_context)
+    sink.create_subscription(imu_class(), '/imu/data', got.append, QoSProfile(
+        depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+    spin(sink)
+    node = replayer(ros_context, tmp_path / 'bag', rate=5.0, reliable=True)
+    try:
+        assert node.play() == len(good) == 997
+        deadline = time.monotonic() + 10.0
+        while len(got) < len(good) and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        node.destroy_node()
+    assert [m.linear_acceleration.z for m in got] == [float(i) for i in range(1000)
+                                                      if i not in bad]
+    assert 'skipped 3 malformed message(s) on /imu/data' in capfd.readouterr().err

@@ -234,7 +234,7 @@ class _McapTopics:
         """The wanted messages of one chunk, through its message indexes when it has them."""
         if index and self._known.issuperset(index) and not self._dest.keys() & index.keys():
             return  # nothing wanted in here: not even decompressed
-        records, size = get_chunk_data_stream(chunk)
+        records, size = get_chunk_data_stream(chunk, validate_crc=True)  # CRC 0: none stored
         data = records.read(size)
         if not index or not self._known.issuperset(index):
             self._walk(data, 0, size, self._records)  # unindexed, or defines its channels

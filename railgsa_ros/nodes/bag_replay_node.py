@@ -9,8 +9,9 @@ wait for every topic to be subscribed before playing, 0 = start at once), ``min_
 every topic RELIABLE with a deep history, playback.qos.choose_qos, and wait up to ACK_TIMEOUT_S at
 the end until every subscriber acknowledged every message, as ``ros2 bag play
 --wait-for-all-acked``: a writer that is gone resends nothing). Topics whose type this
-ROS installation cannot import are skipped with a warning. The node exits when the bag is played
-(never with ``loop``).
+ROS installation cannot import are skipped with a warning. Malformed messages (empty, truncated:
+``playback.source.well_formed``) are never published; the final note counts them per topic. The
+node exits when the bag is played (never with ``loop``).
 """
 
 from __future__ import annotations
@@ -201,9 +202,11 @@ class BagReplayNode(Node):
                 published += 1
         if self.reliable and self._running():
             self._wait_for_acks()
+        skipped = ''.join(f'; skipped {n} malformed message(s) on {topic}'
+                          for topic, n in sorted(self.source.malformed.items()))
         final_note(self, f'published {published} messages; lateness mean '
                          f'{pacer.late_mean_ns / 1e6:.3f} ms, max '
-                         f'{pacer.late_max_ns / 1e6:.3f} ms')
+                         f'{pacer.late_max_ns / 1e6:.3f} ms{skipped}')
         return published
 
     def _wait_for_acks(self) -> None:
