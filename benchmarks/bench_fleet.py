@@ -6,9 +6,9 @@ batch is ingested into a fresh database on a LocalCluster of 1 and of 2 worker p
 thread each, 127.0.0.1). Printed per run: the cluster's start-up (timed apart: paid once per
 batch), wall time, speed-up against the 1-worker run of the same invocation, CPU seconds in the
 workers (``PassResult.cpu_s``: reading, inversion, gridding) and in the client (alignment,
-DuckDB writes, fusion and trends: this process's CPU time), real-time factor and CPU seconds
-per hour of 1 kHz data (bag-hour). The machine is shared: the load average is printed next to
-the numbers.
+DuckDB writes, fusion and trends: this process's CPU time), real-time factor, CPU seconds
+per hour of 1 kHz data (bag-hour) and the largest worker's peak resident memory. The machine
+is shared: the load average is printed next to the numbers.
 
 Usage: python benchmarks/bench_fleet.py [--bags 8] [--minutes 10] [--workers 1 2]
 """
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+import resource
 import shutil
 import tempfile
 import time
@@ -51,13 +52,19 @@ def measure(bags: list[str], workers: int, folder: Path) -> dict[str, float]:
         wall, cpu = time.perf_counter(), time.process_time()
         outcomes = ingest(bags, path, PassOptions(line='bench'), client.scheduler.address)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        rss_kb = max(client.run(peak_rss_kb).values())
     if any(o.status != 'ok' for o in outcomes):
         raise SystemExit(f'ingest failed: {outcomes}')
     con = db.connect(path, read_only=True)
     worker_cpu, data_s = con.execute('SELECT sum(cpu_s), sum(duration_s) FROM passes').fetchone()
     con.close()
     return {'startup': startup, 'wall': wall, 'client': cpu, 'workers': worker_cpu,
-            'data': data_s}
+            'data': data_s, 'rss_mb': rss_kb / 1024}
+
+
+def peak_rss_kb() -> int:
+    """Peak resident memory of this process (kB; run on each worker)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
 def main() -> None:
@@ -76,7 +83,8 @@ def main() -> None:
               f'{len(os.sched_getaffinity(0))} CPUs, load average '
               f'{" ".join(f"{x:.1f}" for x in os.getloadavg())}')
         print(f'{"workers":>7} {"start s":>7} {"wall s":>7} {"speed-up":>8} {"worker CPU s":>12} '
-              f'{"client CPU s":>12} {"x real time":>11} {"CPU s / bag-hour":>16}')
+              f'{"client CPU s":>12} {"x real time":>11} {"CPU s / bag-hour":>16} '
+              f'{"worker peak RSS MB":>18}')
         base = None
         for n in args.workers:
             r = measure(bags, n, folder)
@@ -84,7 +92,7 @@ def main() -> None:
             hours = r['data'] / 3600
             print(f'{n:>7} {r["startup"]:>7.1f} {r["wall"]:>7.1f} {base / r["wall"]:>8.2f} '
                   f'{r["workers"]:>12.1f} {r["client"]:>12.1f} {r["data"] / r["wall"]:>11.0f} '
-                  f'{(r["workers"] + r["client"]) / hours:>16.0f}')
+                  f'{(r["workers"] + r["client"]) / hours:>16.1f} {r["rss_mb"]:>18.0f}')
         print(f'load average after: {" ".join(f"{x:.1f}" for x in os.getloadavg())}')
     finally:
         shutil.rmtree(folder, ignore_errors=True)
