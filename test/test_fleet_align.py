@@ -37,7 +37,8 @@ def test_xcorr_recovers_offset_and_scale(line, offset, odo_scale, direction):
     if direction < 0:
         noise = 2e-4 * np.random.default_rng(2).standard_normal(s.size)
         up = np.interp(offset - s / odo_scale, x, u) + noise
-    found = xcorr_align(ref, s, up, ok, origin(0.0, 'up' if direction > 0 else 'down'))
+    along = 'increasing' if direction > 0 else 'decreasing'
+    found = xcorr_align(ref, s, up, ok, origin(0.0, along))
     assert found is not None
     sd = found.position_sd(s)
     err = found.position(s) - (offset + direction * s / odo_scale)
@@ -53,14 +54,14 @@ def test_unrelated_pass_is_not_aligned(line):
     other = band_distance(synthesize(lambda w: german_psd(w, 'low'), 1500.0, DX, seed=99)[1],
                           DX, 'd1')
     s = np.arange(other.size) * DX
-    assert xcorr_align(ref, s, other, np.ones(s.size, bool), origin(0.0, 'up')) is None
+    assert xcorr_align(ref, s, other, np.ones(s.size, bool), origin(0.0, 'increasing')) is None
 
 
 def test_on_line_grid_follows_the_alignment(line):
     x, u = line
     s, up, ok = _pass(line, 100.0, 1.0, 500.0, 0.0, seed=3)
     ok[400:420] = False
-    cells, (ug,), valid = on_line_grid(s, (up,), ok, origin(100.0, 'up'), DX)
+    cells, (ug,), valid = on_line_grid(s, (up,), ok, origin(100.0, 'increasing'), DX)
     assert cells[0] * DX == pytest.approx(100.0) and np.all(np.diff(cells) == 1)
     assert np.allclose(ug, np.interp(cells * DX, x, u), atol=1e-12)
     assert (~valid).sum() in (20, 21, 22)

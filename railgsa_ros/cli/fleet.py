@@ -11,7 +11,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from railgsa_ros.cli.review import add_location_options
+
 EXIT_SOME_FAILED = 1
+DEFAULT_LINE, DEFAULT_TRACK = 'line', '1'  # when neither the options nor a params file say
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -33,12 +36,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           'LocalCluster on 127.0.0.1)')
     ing.add_argument('--workers', type=int, default=2, metavar='N',
                      help='LocalCluster worker processes, one thread each (default 2)')
-    ing.add_argument('--line', default='line', help='line id (default "line")')
-    ing.add_argument('--track', default='1', help='track id (default "1")')
-    ing.add_argument('--direction', choices=('up', 'down'), default='up',
-                     help='up: line chainage grows with odometry; down: it decreases')
-    ing.add_argument('--km-origin', type=float, default=0.0, metavar='KM',
-                     help="km-post of the odometry origin of a new line's first pass")
     ing.add_argument('--vehicle-id', default='', metavar='NAME', help='vehicle name stored')
     ing.add_argument('--line-geometry', metavar='FILE',
                      help='line geometry for GNSS anchoring: GeoJSON LineString (lon, lat) or '
@@ -51,8 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ing.add_argument('--band', choices=('d1', 'd2'))
     ing.add_argument('--imu-topic', default='/imu/data', metavar='T')
     ing.add_argument('--odom-topic', default='/odom', metavar='T')
-    ing.add_argument('--gnss-topic', default='/gnss/fix', metavar='T',
-                     help='sensor_msgs/NavSatFix topic (default /gnss/fix; used when present)')
+    add_location_options(ing)  # --line, --track, --direction, --km-origin, --gnss-topic
     ing.set_defaults(func=run_ingest)
 
     rep = sub.add_parser('report', help='HTML trend report of the database')
@@ -85,9 +81,11 @@ def pass_options(args: argparse.Namespace) -> object:
         raise ConfigError(f'--workers: must be at least 1, got {args.workers}')
     review = build_options(argparse.Namespace(**vars(args), bag='', truth=None, uncertainty=None,
                                               no_uncertainty=True, limit_end='lower'))
-    return PassOptions(review.config, review.vehicle, args.line, args.track, args.direction,
-                       args.km_origin, args.vehicle_id, args.imu_topic, args.odom_topic,
-                       args.gnss_topic, rate_from_bag=review.rate_from_bag)
+    where = review.reference  # options, else the params file's location keys
+    return PassOptions(review.config, review.vehicle, where.line or DEFAULT_LINE,
+                       where.track or DEFAULT_TRACK, where.direction, where.km_origin,
+                       args.vehicle_id, args.imu_topic, args.odom_topic, args.gnss_topic,
+                       rate_from_bag=review.rate_from_bag)
 
 
 def run_ingest(args: argparse.Namespace) -> int:

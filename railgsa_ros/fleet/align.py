@@ -66,8 +66,10 @@ class Alignment:
 
 
 def origin(offset_m: float, direction: str) -> Alignment:
-    """The frame of a line's first pass: offset at the km-post, scale +-1, no uncertainty."""
-    return Alignment(offset_m, -1.0 if direction == 'down' else 1.0, np.zeros((2, 2)), 'origin')
+    """The frame of a line's first pass: offset at the km-post, scale +1 (km-posts
+    'increasing' along the run) or -1 ('decreasing'), no uncertainty."""
+    return Alignment(offset_m, -1.0 if direction == 'decreasing' else 1.0, np.zeros((2, 2)),
+                     'origin')
 
 
 def on_line_grid(s_m: np.ndarray, columns: tuple[np.ndarray, ...], valid: np.ndarray,

@@ -1,26 +1,38 @@
 """One pass (one bag) inverted with the project's offline pipeline: the unit of work of a worker.
 
-``analyse_pass`` is the only place the fleet calls the inversion: it reads the bag, runs the
-nominal streaming core (``review.stream.run_stream``, no surrogate band: the fleet measures the
-pass-to-pass scatter from repeated passes instead) and returns the band-filtered profile on a
-regular grid of odometry chainage, with what the database needs about the pass. The result is
-plain numpy arrays, small (about 4 values per metre of track), so Dask ships it back cheaply.
+``analyse_pass`` is the only place the fleet calls the inversion: the project's offline driver
+(``railgsa_ros.offline``: the bag in pieces of about 65,536 IMU samples through the nominal
+streaming core, in constant memory; no surrogate band: the fleet measures the pass-to-pass
+scatter from repeated passes instead), each piece's output gridded as it comes
+(``review.grid.GridBuilder``: 0.25 m cells of odometry chainage, cells across data gaps
+invalid). It returns the band-filtered profile with the stamp and speed of each cell and what
+the database needs about the pass: plain numpy arrays, about 4 values per metre of track, so
+Dask ships them back cheaply.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 import time
 
 import numpy as np
 
-from railgsa_ros.bag import read_imu
+from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.fleet.gnss import GNSS_TOPIC, Fixes, read_fixes
-from railgsa_ros.review.health import stamp_stats
-from railgsa_ros.review.sections import resample
-from railgsa_ros.review.stream import run_stream
+from railgsa_ros.offline import (
+    Driver,
+    HeldSpeed,
+    Source,
+    chunks,
+    noise_variance,
+    nominal_rate_hz,
+    peek,
+    steps,
+)
+from railgsa_ros.review.grid import GridBuilder
 from railgsa_ros.uncertainty import UncertaintyConfig
 from railgsa_ros.vehicle import VehicleParams
 
@@ -30,15 +42,16 @@ DX_M = 0.25  # common chainage grid step, m (EN 13848 samples at <= 0.5 m, 0.25 
 @dataclass(frozen=True)
 class PassOptions:
     """How every pass of a batch is inverted and where it lies: inversion configuration, nominal
-    vehicle, location (line, track, direction 'up' (chainage grows with odometry) or 'down',
-    km-post of the odometry origin), vehicle id, topics (IMU, odometry, GNSS), grid step (m)
-    and whether the IMU rate comes from the bag (else ``config.inversion.rate_hz``)."""
+    vehicle, location (line, track, direction of the km-posts along the run 'increasing' or
+    'decreasing', km-post of the odometry origin), vehicle id, topics (IMU, odometry, GNSS),
+    grid step (m) and whether the IMU rate comes from the bag (else
+    ``config.inversion.rate_hz``)."""
 
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     vehicle: VehicleParams = field(default_factory=VehicleParams)
     line: str = 'line'
     track: str = '1'
-    direction: str = 'up'
+    direction: str = 'increasing'
     km_origin: float = 0.0
     vehicle_id: str = ''
     imu_topic: str = '/imu/data'
@@ -97,21 +110,40 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     """Invert one bag and grid it (see the module docstring); InputError naming the bag when it
     cannot be read or gives no usable output."""
     cpu = time.process_time()
-    stream = read_imu(bag, options.imu_topic, options.odom_topic)
+    source = Source(Path(bag), options.imu_topic, options.odom_topic, gnss_topic='')
+    try:
+        first, pieces = peek(chunks(source))
+    except StopIteration:
+        raise InputError(f'{bag}: {options.imu_topic} has no message') from None
     cfg = options.config
-    stats = stamp_stats(stream.stamps_ns, cfg.inversion.gap_factor)
-    if not np.isfinite(stats.rate_hz):
-        raise InputError(f'{bag}: {options.imu_topic} needs at least two distinct stamps')
     if options.rate_from_bag:
-        cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=stats.rate_hz))
-    run = run_stream(stream, cfg, options.vehicle, None)
-    if run.chainage_m[-1] - run.chainage_m[0] < 10 * options.dx_m:
-        raise InputError(f'{bag}: the pass covers {run.chainage_m[-1] - run.chainage_m[0]:.1f} m,'
-                         ' too short to align')
-    s, u, valid = resample(run.chainage_m, run.u_m, options.dx_m)
-    stamps = np.interp(s, run.chainage_m, run.stamps_ns.astype(float)).astype(np.int64)
-    speed = np.interp(s, run.chainage_m, run.speed_mps)
-    fixes = read_fixes(bag, options.gnss_topic)
-    return PassResult(str(bag), options, s, u, valid, stamps, speed, int(stream.stamps_ns[0]),
-                      int(stream.stamps_ns[-1]), int(stream.stamps_ns.size), float(stats.rate_hz),
-                      dict(run.counters), time.process_time() - cpu, fixes)
+        cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=nominal_rate_hz(first, source)))
+    inv = cfg.inversion
+    speed = HeldSpeed(inv.speed_mps, options.odom_topic in source.topics())
+    driver = Driver(cfg, options.vehicle, None,
+                    noise_variance(first, inv.accel_axis, inv.noise_std_mps2), speed)
+    t0 = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
+    profile, clock = GridBuilder(options.dx_m), GridBuilder(options.dx_m)
+    seen = {'samples': 0, 'last': t0}
+
+    def counted(pieces: Iterator[ImuStream]) -> Iterator[ImuStream]:
+        for piece in pieces:
+            seen['samples'] += piece.stamps_ns.size
+            if piece.stamps_ns.size:
+                seen['last'] = max(seen['last'], int(piece.stamps_ns.max()))
+            yield piece
+
+    for step in steps(driver, counted(pieces)):
+        profile.push(step.chainage_m, step.u_m, step.speed_mps)
+        clock.push(step.chainage_m, (step.stamps_ns - t0) * 1e-9, step.speed_mps)
+    grid, times = profile.grid(), clock.grid()
+    if grid.valid.sum() < 10:
+        raise InputError(f'{bag}: the pass covers {grid.valid.sum() * options.dx_m:.1f} m of '
+                         'usable chainage, too short to align')
+    valid = grid.valid
+    stamps = t0 + np.round(np.where(valid, times.u_m, 0.0) * 1e9).astype(np.int64)
+    return PassResult(str(bag), options, grid.x_m, np.where(valid, grid.u_m, 0.0), valid,
+                      stamps, np.where(valid, grid.speed_mps, 0.0), t0, seen['last'],
+                      seen['samples'], float(inv.rate_hz), dict(driver.counters),
+                      time.process_time() - cpu, read_fixes(bag, options.gnss_topic))
+
