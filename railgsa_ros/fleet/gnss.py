@@ -11,56 +11,32 @@ With GNSS the line's frame is the geometry's chainage, not the first pass's odom
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import json
 from pathlib import Path
 
 import numpy as np
 
-from railgsa_ros.bag import open_bag, read_messages
+from railgsa_ros.bag.reader import GnssFixes
 from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.fleet.align import Alignment
 
 GNSS_TOPIC = '/gnss/fix'
-NAVSATFIX = 'sensor_msgs/msg/NavSatFix'
 DEFAULT_VAR_M2 = 25.0  # horizontal variance when a fix gives none (5 m: a plain receiver)
 MIN_FIXES = 10
 REJECT_SD = 3.5
 MAX_CROSS_M = 30.0
 
 
-@dataclass(frozen=True)
-class Fixes:
-    """GNSS fixes with a position: header stamps (ns), lat, lon (deg), horizontal variance (m^2),
-    all (F,)."""
-
-    stamps_ns: np.ndarray
-    lat_deg: np.ndarray
-    lon_deg: np.ndarray
-    var_m2: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.stamps_ns.size)
-
-
-def read_fixes(bag: str | Path, topic: str = GNSS_TOPIC) -> Fixes:
-    """The bag's NavSatFix messages with a fix (status >= 0) and finite lat/lon; empty when the
-    bag has no such topic. Variance: the mean of the east and north covariance entries when
-    the message reports a covariance, else DEFAULT_VAR_M2."""
-    rows = []
-    with open_bag(bag) as reader:  # an empty topic list would make rosbags read every topic
-        present = any(c.topic == topic and c.msgtype == NAVSATFIX for c in reader.connections)
-    for _, _, msg in read_messages(bag, [topic]) if present else ():
-        if msg.status.status < 0 or not (np.isfinite(msg.latitude)
-                                         and np.isfinite(msg.longitude)):
-            continue
-        cov = np.asarray(msg.position_covariance, dtype=float)
-        known = msg.position_covariance_type > 0 and np.isfinite(cov[[0, 4]]).all() and \
-            cov[0] + cov[4] > 0
-        rows.append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg.latitude,
-                     msg.longitude, 0.5 * (cov[0] + cov[4]) if known else DEFAULT_VAR_M2))
-    data = np.array(rows, dtype=float).reshape(-1, 4)
-    return Fixes(data[:, 0].astype(np.int64), data[:, 1], data[:, 2], data[:, 3])
+def horizontal_variance(fixes: GnssFixes) -> np.ndarray:
+    """Horizontal variance (m^2) of each fix: the mean of the east and north covariance entries
+    when the message reports a covariance, DEFAULT_VAR_M2 when it does not, inf for no fix
+    (status < 0) or a non-finite position."""
+    cov = fixes.covariance
+    east_north = 0.5 * (cov[:, 0] + cov[:, 4])
+    known = (fixes.covariance_type > 0) & np.isfinite(east_north) & (east_north > 0)
+    good = (fixes.status >= 0) & np.isfinite(fixes.latitude_deg) & \
+        np.isfinite(fixes.longitude_deg)
+    return np.where(good, np.where(known, east_north, DEFAULT_VAR_M2), np.inf)
 
 
 def load_geometry(path: str | Path, start_m: float = 0.0, line_id: str = 'line') -> object:
@@ -127,14 +103,16 @@ def gnss_alignment(s_fix: np.ndarray, x_fix: np.ndarray, var_m2: np.ndarray
                      windows=int(keep.sum()))
 
 
-def align_fixes(fixes: Fixes, stamps_ns: np.ndarray, s_m: np.ndarray, line: object
+def align_fixes(fixes: GnssFixes, stamps_ns: np.ndarray, s_m: np.ndarray, line: object
                 ) -> Alignment | None:
     """The GNSS alignment of a pass: its cells' stamps (N,) and odometry chainage (N,), the
-    fixes inside the pass's time span projected on ``line``."""
-    inside = (fixes.stamps_ns >= stamps_ns[0]) & (fixes.stamps_ns <= stamps_ns[-1])
+    fixes with a position inside the pass's time span projected on ``line``."""
+    var = horizontal_variance(fixes)
+    inside = (fixes.stamps_ns >= stamps_ns[0]) & (fixes.stamps_ns <= stamps_ns[-1]) & \
+        np.isfinite(var)
     if inside.sum() < MIN_FIXES:
         return None
     s_fix = np.interp(fixes.stamps_ns[inside].astype(float), stamps_ns.astype(float), s_m)
-    x_fix, cross = line.locate(fixes.lat_deg[inside], fixes.lon_deg[inside])
-    var = np.where(np.abs(cross) <= MAX_CROSS_M, fixes.var_m2[inside], np.inf)
+    x_fix, cross = line.locate(fixes.latitude_deg[inside], fixes.longitude_deg[inside])
+    var = np.where(np.abs(cross) <= MAX_CROSS_M, var[inside], np.inf)
     return gnss_alignment(s_fix, x_fix, var)

@@ -20,13 +20,13 @@ import time
 import numpy as np
 
 from railgsa_ros.bag import ImuStream
+from railgsa_ros.bag.reader import GnssFixes, iter_imu
 from railgsa_ros.errors import InputError, RailGsaError
-from railgsa_ros.fleet.gnss import GNSS_TOPIC, Fixes, read_fixes
+from railgsa_ros.fleet.gnss import GNSS_TOPIC
 from railgsa_ros.offline import (
     Driver,
     HeldSpeed,
     Source,
-    chunks,
     noise_variance,
     nominal_rate_hz,
     peek,
@@ -81,7 +81,7 @@ class PassResult:
     rate_hz: float
     counters: dict[str, int]
     cpu_s: float
-    fixes: Fixes
+    fixes: GnssFixes
 
     @property
     def duration_s(self) -> float:
@@ -110,27 +110,33 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     """Invert one bag and grid it (see the module docstring); InputError naming the bag when it
     cannot be read or gives no usable output."""
     cpu = time.process_time()
-    source = Source(Path(bag), options.imu_topic, options.odom_topic, gnss_topic='')
-    try:
-        first, pieces = peek(chunks(source))
+    source = Source(Path(bag), options.imu_topic, options.odom_topic, options.gnss_topic)
+    topics = source.topics()
+    gnss_topic = options.gnss_topic if options.gnss_topic in topics else None
+    try:  # one read of the bag: IMU, odometry and the GNSS fixes of the same span
+        first, pieces = peek(iter_imu(source.bag, options.imu_topic, options.odom_topic,
+                                      gnss_topic))
     except StopIteration:
         raise InputError(f'{bag}: {options.imu_topic} has no message') from None
     cfg = options.config
     if options.rate_from_bag:
         cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=nominal_rate_hz(first, source)))
     inv = cfg.inversion
-    speed = HeldSpeed(inv.speed_mps, options.odom_topic in source.topics())
+    speed = HeldSpeed(inv.speed_mps, options.odom_topic in topics)
     driver = Driver(cfg, options.vehicle, None,
                     noise_variance(first, inv.accel_axis, inv.noise_std_mps2), speed)
     t0 = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
     profile, clock = GridBuilder(options.dx_m), GridBuilder(options.dx_m)
     seen = {'samples': 0, 'last': t0}
+    fixes: list[GnssFixes] = []
 
     def counted(pieces: Iterator[ImuStream]) -> Iterator[ImuStream]:
         for piece in pieces:
             seen['samples'] += piece.stamps_ns.size
             if piece.stamps_ns.size:
                 seen['last'] = max(seen['last'], int(piece.stamps_ns.max()))
+            if piece.gnss is not None:
+                fixes.append(piece.gnss)
             yield piece
 
     for step in steps(driver, counted(pieces)):
@@ -145,5 +151,5 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     return PassResult(str(bag), options, grid.x_m, np.where(valid, grid.u_m, 0.0), valid,
                       stamps, np.where(valid, grid.speed_mps, 0.0), t0, seen['last'],
                       seen['samples'], float(inv.rate_hz), dict(driver.counters),
-                      time.process_time() - cpu, read_fixes(bag, options.gnss_topic))
+                      time.process_time() - cpu, GnssFixes.concat(fixes))
 
