@@ -18,6 +18,8 @@ pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[1]
 #: a short band delay (about 1.8 s) keeps the tests fast; no odometry unless a test wants it
 PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0}
+#: the Rig's node keeps the last D samples until a test flushes them (no idle flush)
+HOLD = {'idle_flush_s': 3600.0}
 T0_NS = 1_000_000_000  # scenario stamps start at 0, which is not a valid header stamp
 G = 9.80665
 
@@ -63,6 +65,19 @@ def offline(stamps_ns: np.ndarray, accel_z: np.ndarray, speed: float = 40.0,
     return InversionPipeline(config, None, noise_variance).push(stamps_ns, accel_z, speed)
 
 
+def offline_flushed(stamps_ns: np.ndarray, accel_z: np.ndarray, **params: Any) -> Any:
+    """The offline pipeline's push then flush (a stream that ended): (stamps, chainage, u)."""
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.pipeline import InversionPipeline
+
+    cfg = {**PARAMS, **params}
+    pipe = InversionPipeline(InversionConfig.from_mapping(
+        {k: v for k, v in cfg.items() if k not in ('use_odom', 'wrong_frame_policy')}))
+    outs = (pipe.push(stamps_ns, accel_z, cfg['speed_mps']), pipe.flush())
+    return tuple(np.concatenate([getattr(o, f) for o in outs])
+                 for f in ('stamps_ns', 'chainage_m', 'u_m'))
+
+
 class Rig:
     """An IrregularityNode plus a test node publishing imu/data (and odom) and recording
     track/irregularity and /diagnostics."""
@@ -80,7 +95,7 @@ class Rig:
         from railgsa_ros.nodes.qos import output_qos, sensor_qos
 
         self.wait_for = wait_for
-        overrides = [Parameter(k, value=v) for k, v in {**PARAMS, **params}.items()]
+        overrides = [Parameter(k, value=v) for k, v in {**PARAMS, **HOLD, **params}.items()]
         self.node = spin(IrregularityNode(context=ros_context, parameter_overrides=overrides))
         self.test = Node('irregularity_test', context=ros_context)
         self.lock = threading.Lock()

@@ -19,7 +19,7 @@ from railgsa_ros.vehicle import PARAM_NAMES
 #: node parameters with no offline meaning: accepted and dropped
 TRANSPORT = frozenset({'imu_qos_depth', 'imu_reliability', 'odom_reliability',
                        'output_qos_depth', 'hardware_id', 'process_period_s',
-                       'sensitivity_qos_depth', 'autostart'})
+                       'sensitivity_qos_depth', 'autostart', 'idle_flush_s', 'flush_rate_hz'})
 #: live-node input settings that the offline commands do not apply (refused: a silent
 #: default would differ from the node)
 NODE_INPUT = ('use_odom', 'odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s')

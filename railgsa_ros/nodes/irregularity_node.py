@@ -6,6 +6,10 @@ IMU sample's stamp, frame ``track``, x = chainage m, z = irregularity m, +z up) 
 ``/diagnostics``. A thin adapter over :class:`railgsa_ros.inverse.pipeline.InversionPipeline`;
 see docs/nodes.md for topics, parameters, QoS and diagnostics.
 
+Nothing is held back: ``idle_flush_s`` without input, deactivate and shutdown flush the samples
+pending in the band filter; every output goes through an
+:class:`~railgsa_ros.nodes.pacing.OutputPacer` (no burst beyond the writer history).
+
 Processing: the IMU callback gets the message it was called for plus every message already
 waiting in the reader history (:class:`~railgsa_ros.nodes.imu_input.ImuIntake`) and pushes them
 through the pipeline at once. At light load each sample is processed as it arrives (lowest
@@ -33,6 +37,7 @@ from typing import Any
 from geometry_msgs.msg import PointStamped
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 
@@ -48,9 +53,9 @@ from railgsa_ros.nodes.diagnostics import (
     LatencyWindow,
     Report,
 )
-from railgsa_ros.nodes.imu_conversion import NS_PER_S
 from railgsa_ros.nodes.imu_input import ImuIntake
 from railgsa_ros.nodes.lifecycle import ManagedNode, run
+from railgsa_ros.nodes.pacing import OutputPacer
 from railgsa_ros.nodes.params import accept_integers, declare, merged
 from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
@@ -87,6 +92,8 @@ class IrregularityNode(ManagedNode):
     """The managed node; with autostart (default), ConfigError from the constructor when the
     parameters are invalid."""
 
+    NODE_NAME, SPECS = NODE_NAME, SPECS
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._values: dict[str, Any] | None = None
@@ -95,13 +102,17 @@ class IrregularityNode(ManagedNode):
         self._candidate: InversionPipeline | None = None
         self._next_model: InversionPipeline | None = None
         self._retired: Counter[str] = Counter()  # counters of replaced pipelines
-        self._counts: Counter[str] = Counter()   # rebuild, internal_error, published
+        self._counts: Counter[str] = Counter()   # rebuild, internal_error, published, flush_*
         self._latency = LatencyWindow()
         self._deltas = {task: Deltas() for task in ('imu', 'inversion')}
         self._first_stamp_ns = -1  # first IMU stamp processed since the process started
         self._intake: ImuIntake | None = None
         self._diagnostics: DiagnosticsPublisher | None = None
         self._pub: Any = None
+        self._pacer: OutputPacer | None = None
+        self._idle_timer: Any = None
+        self._last_input = time.monotonic()  # steady time of the last IMU batch, s
+        self._unflushed = False  # samples pushed since the last flush
         self.add_pre_set_parameters_callback(accept_integers(SPECS))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -115,8 +126,10 @@ class IrregularityNode(ManagedNode):
         self._values = values
         self._pub = self.create_lifecycle_publisher(PointStamped, 'track/irregularity',
                                                     output_qos(values['output_qos_depth']))
-        self._out_msg = PointStamped()
-        self._out_msg.header.frame_id = OUTPUT_FRAME
+        msg = PointStamped()
+        msg.header.frame_id = OUTPUT_FRAME
+        self._pacer = OutputPacer(self, self._pub, msg, 'point', values['output_qos_depth'],
+                                  values['flush_rate_hz'])
 
     def activate(self) -> None:
         """Subscriptions and the diagnostics reporter."""
@@ -125,21 +138,36 @@ class IrregularityNode(ManagedNode):
         self._diagnostics = DiagnosticsPublisher(self, self._values['hardware_id'])
         self._diagnostics.add('imu input', self._report_input)
         self._diagnostics.add('inversion', self._report_inversion)
+        idle = self._values['idle_flush_s']
+        self._idle_timer = self.create_timer(min(0.1, idle / 2), self._on_idle_check,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def deactivate(self) -> None:
-        """Stop taking input (pending output stays in the filters) and reporting."""
+        """Process the input waiting in the reader, flush the filters, publish and await the
+        acknowledgement of every output; then stop taking input and reporting."""
         if self._intake is not None:
+            while msgs := self._intake.take():
+                self.process(msgs)
+            self._flush('flush_deactivate')
+            self._pacer.finish()
             self._counts.update(self._intake.counts)
             self._intake.destroy()
             self._intake = None
         if self._diagnostics is not None:
             self._diagnostics.destroy()
             self._diagnostics = None
+        if self._idle_timer is not None:
+            self.destroy_timer(self._idle_timer)
+            self._idle_timer = None
 
     def release(self) -> None:
         """Drop the pipeline (its counters are kept) and the publisher."""
         if self._pipeline is not None:
             self._retire(None)
+        if self._pacer is not None:
+            self._counts['published'] += self._pacer.published
+            self._pacer.destroy()
+            self._pacer = None
         if self._pub is not None:
             self.destroy_lifecycle_publisher(self._pub)
             self._pub = None
@@ -190,11 +218,32 @@ class IrregularityNode(ManagedNode):
         self.process(msgs)
         self._latency.add(time.monotonic() - t_rx)
 
+    def _on_idle_check(self) -> None:
+        """No IMU message for idle_flush_s: the stream ended, flush what the filters hold
+        (first whatever waits in the reader: a stall of this process is no end)."""
+        if not self._unflushed or \
+                time.monotonic() - self._last_input < self._values['idle_flush_s']:
+            return
+        msgs = self._intake.take()
+        if msgs:
+            self._on_messages(msgs)
+        else:
+            self._flush('flush_idle')
+
+    def _flush(self, reason: str) -> Output | None:
+        """Flush the pipeline (a stream ended): publish its pending outputs, count ``reason``."""
+        if self._pipeline is None or not self._unflushed:
+            return None
+        self._unflushed = False
+        self._counts[reason] += 1
+        return self._publish(self._pipeline.flush())
+
     def process(self, msgs: Sequence[Imu]) -> Output | None:
         """Convert, push through the pipeline, publish; returns what was published (None when
         not active)."""
         if self._intake is None or self._pipeline is None or self._values is None:
             return None
+        self._last_input = time.monotonic()
         samples = self._intake.prepare(msgs, self._pipeline.config, self._values)
         if samples is not None and self._first_stamp_ns < 0:
             self._first_stamp_ns = int(samples.stamps_ns[0])
@@ -203,6 +252,7 @@ class IrregularityNode(ManagedNode):
         flushed = self._switch_model()
         out = None
         if samples is not None:
+            self._unflushed = True
             try:
                 out = self._pipeline.push(samples.stamps_ns, samples.accel_up, samples.speed_mps,
                                           samples.frame_ids)
@@ -211,7 +261,7 @@ class IrregularityNode(ManagedNode):
                 self.get_logger().error(f'inversion failed, filters reset: {exc!r}',
                                         throttle_duration_sec=1.0)
                 self._retire(build_model(self._values, self._noise_variance))
-        return self._publish(self._join(flushed, out))
+        return self._publish(self._join(flushed, out), live=len(msgs))
 
     def _use_reported_noise(self, variance: float) -> None:
         """kalman: the first IMU-reported variance replaces noise_std_mps2 before any sample
@@ -247,17 +297,13 @@ class IrregularityNode(ManagedNode):
         return Output(*(np.concatenate(parts) for parts in zip(
             *((o.stamps_ns, o.chainage_m, o.u_m) for o in outs), strict=True)))
 
-    def _publish(self, out: Output | None) -> Output | None:
-        """One PointStamped per output sample, stamped with its IMU stamp."""
+    def _publish(self, out: Output | None, live: int = 0) -> Output | None:
+        """One PointStamped per output sample, stamped with its IMU stamp, through the pacer
+        (``live``: input samples of the batch, see OutputPacer.put)."""
         if out is None or not len(out):
             return out
-        sec, nsec = np.divmod(out.stamps_ns, NS_PER_S)
-        msg, stamp, point = self._out_msg, self._out_msg.header.stamp, self._out_msg.point
-        for s, ns, x, z in zip(sec.tolist(), nsec.tolist(), out.chainage_m.tolist(),
-                               out.u_m.tolist(), strict=True):
-            stamp.sec, stamp.nanosec, point.x, point.z = s, ns, x, z
-            self._pub.publish(msg)
-        self._counts['published'] += len(out)
+        xyz = np.column_stack([out.chainage_m, np.zeros(len(out)), out.u_m])
+        self._pacer.put(out.stamps_ns, xyz, live)
         return out
 
     # ------------------------------------------------------------------ diagnostics
@@ -265,7 +311,8 @@ class IrregularityNode(ManagedNode):
         """Cumulative counts by reason over the node's life (all pipelines)."""
         live = [] if self._pipeline is None else [Counter(self._pipeline.counters)]
         intake = [] if self._intake is None else [self._intake.counts]
-        return dict(sum((*live, *intake, self._counts), self._retired.copy()))
+        paced = Counter() if self._pacer is None else Counter(published=self._pacer.published)
+        return dict(sum((*live, *intake, self._counts, paced), self._retired.copy()))
 
     def _report_input(self, elapsed_s: float) -> Report:
         totals = self.counters()
@@ -284,6 +331,8 @@ class IrregularityNode(ManagedNode):
             'published': totals.get('published', 0),
             'output_rate_hz': delta.get('published', 0) / elapsed_s,
             'rebuilds': totals.get('rebuild', 0), 'redesigns': totals.get('redesign', 0),
+            'idle_flushes': totals.get('flush_idle', 0),
+            'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending,
             'internal_errors': totals.get('internal_error', 0),
             'speed_mps': intake.speed_mps,
             'speed_source': 'parameter' if intake.odom_missing or not self._values['use_odom']

@@ -5,7 +5,9 @@ Transitions (REP-free summary; docs/nodes.md has the table):
 - configure: declare and validate the parameters, build the model (``configure``); a
   ConfigError is logged, kept in ``config_error`` and the node stays unconfigured;
 - activate: subscriptions and diagnostics on (``activate``), lifecycle publishers enabled;
-- deactivate: subscriptions and diagnostics off (``deactivate``), publishers disabled;
+- deactivate: input waiting in the reader processed, the filters flushed and every output
+  published (paced) and acknowledged, then subscriptions and diagnostics off (``deactivate``),
+  publishers disabled;
 - cleanup / shutdown: the model and every interface released (``release``).
 
 Parameter ``autostart`` (default true): ``autostart()``, called at the end of the subclass
@@ -17,7 +19,6 @@ restart is visible there.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 import sys
 import time
 from typing import Any
@@ -26,9 +27,12 @@ import uuid
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
+from rclpy.signals import SignalHandlerOptions
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes import early_signals
+from railgsa_ros.nodes.params import ParamSpec, check_params_files, declare
+from railgsa_ros.nodes.specs import ALL_PARAMETER_NAMES
 
 AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up (false: wait for '
                       '~/change_state)', read_only=True)
@@ -36,10 +40,15 @@ SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FA
 #: one id per process: a node restarted by a supervisor shows a new one on /diagnostics
 BOOT_ID = uuid.uuid4().hex[:12]
 STARTED_NS = time.time_ns()
+STOP_POLL_S = 0.1  #: a stop request is noticed within this, s
 
 
 class ManagedNode(Node):
-    """A lifecycle node; subclasses implement configure, activate, deactivate and release."""
+    """A lifecycle node; subclasses set NODE_NAME and SPECS (their parameters) and implement
+    configure, activate, deactivate and release."""
+
+    NODE_NAME = ''
+    SPECS: tuple[ParamSpec, ...] = ()
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
@@ -62,6 +71,16 @@ class ManagedNode(Node):
             raise ConfigError(self.config_error or 'configure failed')
         if self.trigger_activate() != SUCCESS:
             raise ConfigError('activate failed')
+
+    @classmethod
+    def parameter_names(cls) -> frozenset[str]:
+        """Every parameter the node declares (a params file may set no other)."""
+        return frozenset(s.name for s in (*cls.SPECS, AUTOSTART))
+
+    def finish(self) -> None:
+        """Shut down through the lifecycle: deactivate (pending input processed, filters
+        flushed, outputs published and acknowledged), then release."""
+        self.trigger_shutdown()
 
     def lifecycle_values(self) -> dict[str, object]:
         """Process and lifecycle facts for /diagnostics."""
@@ -117,20 +136,40 @@ class ManagedNode(Node):
         raise NotImplementedError
 
 
-def run(factory: Callable[[], ManagedNode], args: list[str] | None = None) -> int:
+def run(factory: type[ManagedNode], args: list[str] | None = None) -> int:
     """Build the node and spin until SIGINT/SIGTERM: exit code 0, or 2 with one line
-    ``error: <reason>`` when autostart fails on bad parameters.
+    ``error: <reason>`` for a bad ``--params-file`` (missing, malformed, unknown keys, no section
+    for the node) or when autostart fails on bad parameters.
 
-    rclpy's signal handler shuts the context down: whatever that makes fail while the node is
-    being built (RCLError 'context is invalid', a failed configure) is a stop request, exit 0.
+    Started as a node (``early_signals`` installed), rclpy gets no signal handlers: a signal
+    only sets a flag that the spin loop checks every ``STOP_POLL_S``, so it never raises inside
+    rclpy; the node then shuts down through its lifecycle (``finish``: pending input processed,
+    the filters flushed, every output published and acknowledged) and the process exits 0.
+    Otherwise (imported by another program) rclpy's handlers apply: its signal handler shuts
+    the context down, and whatever that makes fail while the node is being built (RCLError
+    'context is invalid', a failed configure) is a stop request, exit 0.
     """
+    try:
+        check_params_files(sys.argv[1:] if args is None else args, factory.NODE_NAME,
+                           factory.parameter_names(), ALL_PARAMETER_NAMES)
+    except ConfigError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    own_signals = early_signals.installed()
     node = None
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals
+                   else None)
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        if own_signals:
+            early_signals.hand_over()
+            while not early_signals.stop_requested() and rclpy.ok():
+                executor.spin_once(timeout_sec=STOP_POLL_S)
+            node.finish()
+        else:
+            executor.spin()
     except ConfigError as exc:
         if not rclpy.ok():  # a stop request shut the context down while configuring
             return 0

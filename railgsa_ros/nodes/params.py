@@ -4,11 +4,14 @@ rclpy itself enforces the type, the numeric range and read_only; ``choices`` (st
 checked here. ``declare`` turns any rejection at start-up into a ConfigError naming the parameter.
 An integer given for a float parameter (``-p speed_mps:=30``) is taken as that float, at start-up
 (``declare``) and later (``accept_integers``, a pre-set callback); other wrong types are refused.
+``check_params_files`` reads every ``--params-file`` of the command line before rclpy does: a
+missing or malformed file, an unknown key or no section for the node is a ConfigError naming the
+file (rcl alone ignores unknown keys and other nodes' sections).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +20,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from railgsa_ros.config import load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
 
 
@@ -113,3 +117,33 @@ def merged(current: Mapping[str, Any], specs: Sequence[ParamSpec],
             reasons.append(spec.check(param.value))
             values[param.name] = param.value
     return values, next((r for r in reasons if r is not None), None)
+
+
+def ros_arg_values(argv: Sequence[str], flags: Collection[str]) -> list[str]:
+    """Values following any of ``flags`` inside ``--ros-args ... [--]`` sections of argv."""
+    values, inside = [], False
+    args = iter(argv)
+    for arg in args:
+        if arg == '--ros-args':
+            inside = True
+        elif arg == '--':
+            inside = False
+        elif inside and arg in flags:
+            values.append(next(args, ''))
+    return values
+
+
+def check_params_files(argv: Sequence[str], node_name: str, known: Collection[str],
+                       shared_known: Collection[str]) -> None:
+    """ConfigError naming the file for each ``--params-file`` of ``argv`` that is missing or
+    malformed, has no section for the node (its name, or ``__node:=`` / ``__name:=`` remapped)
+    or sets a parameter outside ``known`` (``/**`` sections: outside ``shared_known``, the
+    names of every railgsa node)."""
+    for remap in ros_arg_values(argv, ('-r', '--remap')):
+        rule, _, value = remap.partition(':=')
+        if rule in ('__node', '__name') and value:
+            node_name = value
+    for path in ros_arg_values(argv, ('--params-file',)):
+        if not path:
+            raise ConfigError('--params-file: no file given')
+        ros_parameters(load_yaml(path), node_name, known, path, shared_known=shared_known)

@@ -4,7 +4,9 @@
 - VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults and the physical
   bounds of ``vehicle.PARAM_BOUNDS`` (the same in vehicle files and the CLI).
 - NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, input QoS,
-  stuck sensor and backward time limits).
+  stuck sensor and backward time limits, idle flush and output pacing).
+- UNCERTAINTY_SPECS: uncertainty_node's own (UncertaintyConfig fields and its extras).
+- ALL_PARAMETER_NAMES: every name either node declares (for params files shared with ``/**``).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.nodes.params import ParamSpec
 from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
+from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.vehicle import (
     PARAM_BOUNDS,
     PARAM_NAMES,
@@ -57,7 +60,26 @@ NODE_SPECS = (
     ParamSpec('backward_reset_s', 1.0, 'stamps going backwards by more than this (a looped bag, '
               'a sim-time reset) restart the filters instead of being rejected, s',
               (0.001, 1e6)),
+    ParamSpec('idle_flush_s', 1.0, 'no IMU message for this long (steady clock) ends the stream: '
+              'the samples pending in the band filter (about 7 s) are flushed and published, s',
+              (0.05, 3600.0)),
+    ParamSpec('flush_rate_hz', 2000.0, 'flushed outputs are published at this rate on top of '
+              'the live ones, in slices of at most half output_qos_depth, messages/s',
+              (10.0, 1e6), read_only=True),
 )
+UNCERTAINTY_SPECS = (
+    *(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'], f.metadata['choices'])
+      for f in fields(UncertaintyConfig) if f.name != 'inversion'),
+    ParamSpec('uncertainty_file', '', 'YAML of uncertain parameters (schema of '
+              'config/uncertainty.yaml); empty: Table 3 around the nominal vehicle'),
+    ParamSpec('process_period_s', 0.05, 'buffered IMU samples are processed every this, s',
+              (0.001, 1.0)),
+    ParamSpec('sensitivity_qos_depth', 10, 'track/sensitivity writer history (RELIABLE)',
+              (1, 10_000)),
+)
+#: the parameters of irregularity_node and uncertainty_node, and ``autostart``
+ALL_PARAMETER_NAMES = frozenset(s.name for s in (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS,
+                                                  *UNCERTAINTY_SPECS)) | {'autostart'}
 #: NODE_SPECS handed to the core's input sanitiser
 SANITIZER_PARAMS = ('stuck_s', 'backward_reset_s')
 

@@ -18,7 +18,9 @@ the 1 kHz stream never wakes the executor); a steady-clock timer takes every wai
 every ``process_period_s`` and processes them as one batch (measured: the per-message executor
 dispatch is most of a Python node's cost at 1 kHz). All parameters are read-only: to change
 them, deactivate, clean up, set, configure and activate again, or restart. A managed lifecycle
-node like irregularity_node (:mod:`railgsa_ros.nodes.lifecycle`). See docs/uncertainty_node.md.
+node like irregularity_node (:mod:`railgsa_ros.nodes.lifecycle`), flushing like it on
+``idle_flush_s`` without input, on deactivate and on shutdown, and publishing the band through an
+:class:`~railgsa_ros.nodes.pacing.OutputPacer`. See docs/uncertainty_node.md.
 """
 
 from __future__ import annotations
@@ -52,16 +54,18 @@ from railgsa_ros.nodes.diagnostics import (
 from railgsa_ros.nodes.imu_conversion import NS_PER_S
 from railgsa_ros.nodes.imu_input import ImuIntake
 from railgsa_ros.nodes.lifecycle import ManagedNode, run
-from railgsa_ros.nodes.params import ParamSpec, accept_integers, declare
+from railgsa_ros.nodes.pacing import OutputPacer
+from railgsa_ros.nodes.params import accept_integers, declare
 from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
     NODE_SPECS,
     SANITIZER_PARAMS,
+    UNCERTAINTY_SPECS,
     VEHICLE_SPECS,
     vehicle_values,
 )
-from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream
+from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream, Update
 from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
 from railgsa_ros.vehicle import VehicleParams
 
@@ -69,21 +73,13 @@ NODE_NAME = 'uncertainty_node'
 OUTPUT_FRAME = 'track'
 MAX_BATCH = 5000  # messages taken from the reader history per timer tick
 
-_OWN_SPECS = tuple(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'],
-                             f.metadata['choices']) for f in fields(UncertaintyConfig)
-                   if f.name != 'inversion')
-_EXTRA_SPECS = (
-    ParamSpec('uncertainty_file', '', 'YAML of uncertain parameters (schema of '
-              'config/uncertainty.yaml); empty: Table 3 around the nominal vehicle'),
-    ParamSpec('process_period_s', 0.05, 'buffered IMU samples are processed every this, s',
-              (0.001, 1.0)),
-    ParamSpec('sensitivity_qos_depth', 10, 'track/sensitivity writer history (RELIABLE)',
-              (1, 10_000)),
-)
 #: irregularity_node's inversion, vehicle and input parameters (same names and defaults), then
 #: the uncertainty parameters; all read-only.
 SPECS = tuple(replace(s, read_only=True) for s in
-              (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, *_OWN_SPECS, *_EXTRA_SPECS))
+              (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, *UNCERTAINTY_SPECS))
+#: uncertainty_node's own parameters that UncertaintyConfig holds
+_OWN_SPECS = tuple(s for s in UNCERTAINTY_SPECS
+                   if s.name in {f.name for f in fields(UncertaintyConfig)})
 
 
 def sensitivity_message(record: Sensitivity, hardware_id: str) -> DiagnosticArray:
@@ -110,6 +106,8 @@ class UncertaintyNode(ManagedNode):
     """The managed node; with autostart (default), ConfigError from the constructor when the
     parameters are invalid."""
 
+    NODE_NAME, SPECS = NODE_NAME, SPECS
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._values: dict[str, Any] = {}
@@ -125,6 +123,9 @@ class UncertaintyNode(ManagedNode):
         self._diagnostics: DiagnosticsPublisher | None = None
         self._timer: Any = None
         self._pubs: tuple[Any, ...] = ()
+        self._pacer: OutputPacer | None = None
+        self._last_input = time.monotonic()  # steady time of the last IMU batch, s
+        self._unflushed = False  # samples pushed since the last flush
         self.add_pre_set_parameters_callback(accept_integers(SPECS))
         self.autostart()
 
@@ -145,8 +146,10 @@ class UncertaintyNode(ManagedNode):
                                             output_qos(values['output_qos_depth'])),
             self.create_lifecycle_publisher(DiagnosticArray, 'track/sensitivity',
                                             output_qos(values['sensitivity_qos_depth'])))
-        self._band_msg = Vector3Stamped()
-        self._band_msg.header.frame_id = OUTPUT_FRAME
+        msg = Vector3Stamped()
+        msg.header.frame_id = OUTPUT_FRAME
+        self._pacer = OutputPacer(self, self._pubs[0], msg, 'vector', values['output_qos_depth'],
+                                  values['flush_rate_hz'])
         design = self.stream.design
         self.get_logger().info(
             f'{design.points} rule points ({self.config.rule}, order {self.config.order}, '
@@ -164,8 +167,13 @@ class UncertaintyNode(ManagedNode):
         self._diagnostics.add('uncertainty', self._report_uncertainty)
 
     def deactivate(self) -> None:
-        """Stop taking input and reporting."""
+        """Process the input waiting in the reader, flush the stream, publish and await the
+        acknowledgement of every band output; then stop taking input and reporting."""
         if self._intake is not None:
+            while msgs := self._intake.take(limit=MAX_BATCH):
+                self.process(msgs)
+            self._flush('flush_deactivate')
+            self._pacer.finish()
             self._counts.update(self._intake.counts)
             self._intake.destroy()
             self._intake = None
@@ -181,28 +189,45 @@ class UncertaintyNode(ManagedNode):
         if self.stream is not None:
             self._retired.update(self.stream.counters)
             self.stream = None
+        if self._pacer is not None:
+            self._counts['published'] += self._pacer.published
+            self._pacer.destroy()
+            self._pacer = None
         for pub in self._pubs:
             self.destroy_lifecycle_publisher(pub)
         self._pubs = ()
 
     # ------------------------------------------------------------------ data path
     def _on_timer(self) -> None:
-        """Take every message waiting in the reader history and process them."""
+        """Take every message waiting in the reader history and process them; none for
+        idle_flush_s: the stream ended, flush what the filters hold."""
         msgs = self._intake.take(limit=MAX_BATCH) if self._intake is not None else []
         if msgs:
             self.process(msgs)
+        elif time.monotonic() - self._last_input >= self._values['idle_flush_s']:
+            self._flush('flush_idle')
+
+    def _flush(self, reason: str) -> None:
+        """Flush the stream (a stream ended): publish its pending band and windows."""
+        if self.stream is None or not self._unflushed:
+            return
+        self._unflushed = False
+        self._counts[reason] += 1
+        self._publish_update(self.stream.flush(), 0)
 
     def process(self, msgs: Sequence[Imu]) -> Band | None:
         """Convert, push through the stream, publish band and windows; returns the band (None
         when not active or nothing was accepted)."""
         if self._intake is None or self.stream is None:
             return None
+        self._last_input = time.monotonic()
         samples = self._intake.prepare(msgs, self.config.inversion, self._values)
         if samples is None:
             return None
         if self._first_stamp_ns < 0:
             self._first_stamp_ns = int(samples.stamps_ns[0])
         self._use_reported_noise(samples.reported_variance)
+        self._unflushed = True
         try:
             update = self.stream.push(samples.stamps_ns, samples.accel_up, samples.speed_mps,
                                       samples.frame_ids)
@@ -212,13 +237,21 @@ class UncertaintyNode(ManagedNode):
                                     throttle_duration_sec=1.0)
             self._rebuild()
             return None
-        self._publish(update.band)
+        self._publish_update(update, len(msgs))
+        return update.band
+
+    def _publish_update(self, update: Update, live: int) -> None:
+        """The band (one Vector3Stamped per sample, stamped with its IMU stamp, through the
+        pacer; ``live``: input samples of the batch) and the closed windows."""
+        band = update.band
+        if len(band):
+            self._pacer.put(band.stamps_ns, np.column_stack([band.lower_m, band.mean_m,
+                                                             band.upper_m]), live)
         for record in update.windows:
             self._pubs[1].publish(sensitivity_message(record, self._values['hardware_id']))
             last = record.compute_s * 1e3
             self._window_ms = (last, max(self._window_ms[1], last))
         self._counts['windows'] += len(update.windows)
-        return update.band
 
     def _use_reported_noise(self, variance: float | None) -> None:
         """kalman: the first IMU-reported variance replaces noise_std_mps2 before any sample,
@@ -240,22 +273,13 @@ class UncertaintyNode(ManagedNode):
         self._retired.update(self.stream.counters)
         self.stream = self._new_stream(self.stream.pipeline.chainage_m)
 
-    def _publish(self, band: Band) -> None:
-        """One Vector3Stamped per band sample, stamped with its IMU stamp."""
-        sec, nsec = np.divmod(band.stamps_ns, NS_PER_S)
-        msg, stamp, vec = self._band_msg, self._band_msg.header.stamp, self._band_msg.vector
-        for s, ns, lo, mid, hi in zip(sec.tolist(), nsec.tolist(), band.lower_m.tolist(),
-                                      band.mean_m.tolist(), band.upper_m.tolist(), strict=True):
-            stamp.sec, stamp.nanosec, vec.x, vec.y, vec.z = s, ns, lo, mid, hi
-            self._pubs[0].publish(msg)
-        self._counts['published'] += len(band)
-
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
         """Cumulative counts by reason over the node's life."""
         live = [] if self.stream is None else [Counter(self.stream.counters)]
         intake = [] if self._intake is None else [self._intake.counts]
-        return dict(sum((*live, *intake, self._counts), self._retired.copy()))
+        paced = Counter() if self._pacer is None else Counter(published=self._pacer.published)
+        return dict(sum((*live, *intake, self._counts, paced), self._retired.copy()))
 
     def _report_input(self, elapsed_s: float) -> Report:
         totals = self.counters()
@@ -273,6 +297,8 @@ class UncertaintyNode(ManagedNode):
             'parameters': ' '.join(design.names), 'rule_points': design.points,
             'band_delay_samples': self.stream.delay_samples,
             'published': totals.get('published', 0), 'windows': totals.get('windows', 0),
+            'idle_flushes': totals.get('flush_idle', 0),
+            'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending,
             'window_compute_ms': self._window_ms[0], 'window_compute_max_ms': self._window_ms[1],
             'cpu_fraction_of_one_core': cpu, 'speed_mps': self._intake.speed_mps,
             'internal_errors': totals.get('internal_error', 0),

@@ -1,0 +1,122 @@
+"""Per-sample outputs published without bursts larger than the writer history.
+
+A flush (end of a stream, a reset, a rebuild, deactivate, shutdown) releases the D samples waiting
+in the band filter at once: about 7000 messages. Published in one loop they overwrite a writer
+history of 1000 before a RELIABLE reader acknowledged them, and they overflow the reader's own
+history of 1000 before its executor takes them: measured over loopback, 1905 of 7000 reached a
+RELIABLE depth-1000 reader (rclpy SingleThreadedExecutor in its own process); in slices of 250 or
+500 every 50 ms, 7000 of 7000. Waiting for acknowledgements alone is no pace: Fast DDS answers
+``wait_for_all_acked`` at its heartbeat, up to 3 s per slice (measured mean 0.3-0.7 s).
+
+So the pacer keeps a queue in stamp order and publishes from it in slices of at most half the
+writer history: outputs of live input (one per IMU sample, at the input rate) go out at once when
+nothing waits before them; on top of them, flushed outputs go out at ``flush_rate_hz`` (a steady
+timer every ``PERIOD_S`` while the queue is not empty, yielding to the executor in between).
+``finish`` (deactivate, shutdown) publishes what is left at the same pace, then waits (bounded)
+until every matched reader acknowledged everything, so nothing dies with the writer.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+import time
+from typing import Any
+
+import numpy as np
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
+from rclpy.node import Node
+
+from railgsa_ros.nodes.imu_conversion import NS_PER_S
+
+PERIOD_S = 0.01  #: pacing timer period while outputs wait, s
+#: longest wait for the readers' acknowledgements in ``finish``, s (Fast DDS heartbeat: 3 s)
+ACK_TIMEOUT_S = 3.5
+
+
+class OutputPacer:
+    """Queue and paced publisher of stamped 3-vectors (PointStamped.point or
+    Vector3Stamped.vector); ``msg`` is the message reused for every sample (frame set)."""
+
+    def __init__(self, node: Node, publisher: Any, msg: Any, field: str, depth: int,
+                 flush_rate_hz: float) -> None:
+        self._node, self._pub, self._msg, self._field = node, publisher, msg, field
+        self.slice = max(1, depth // 2)  #: most messages published in one go
+        self.flush_rate_hz = float(flush_rate_hz)
+        self._queue: deque[tuple[np.ndarray, np.ndarray]] = deque()  # (stamps, (K, 3)) parts
+        self.pending = 0  #: messages waiting in the queue
+        self.published = 0  #: messages published so far
+        self.max_pending = 0  #: largest queue seen, messages
+        self._live = 0  # messages of live input not yet published (sent at the input's pace)
+        self._credit = 0.0  # flushed messages that may go out now (grows at flush_rate_hz)
+        self._last = time.monotonic()
+        self._timer = node.create_timer(PERIOD_S, self.drain,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._timer.cancel()
+
+    def put(self, stamps_ns: np.ndarray, xyz: np.ndarray, live: int = 0) -> None:
+        """Queue outputs (stamps int64 (K,), values (K, 3)) and publish what the pace allows;
+        ``live``: input samples just received (each adds at most one output at the input's
+        pace; outputs beyond them are flushed ones)."""
+        if not stamps_ns.size:
+            return
+        self._queue.append((stamps_ns, xyz))
+        self.pending += stamps_ns.size
+        self.max_pending = max(self.max_pending, self.pending)
+        self._live += min(live, stamps_ns.size)
+        self.drain()
+
+    def drain(self) -> int:
+        """Publish up to one slice allowed by the pace; returns the count (also the timer)."""
+        now = time.monotonic()
+        self._credit = min(self._credit + self.flush_rate_hz * (now - self._last), self.slice)
+        self._last = now
+        count = self._publish(min(self._live + int(self._credit), self.slice))
+        from_live = min(count, self._live)
+        self._live -= from_live
+        self._credit -= count - from_live
+        if self.pending:
+            if self._timer.is_canceled():
+                self._timer.reset()
+        else:
+            self._timer.cancel()
+            self._live = 0
+        return count
+
+    def finish(self) -> bool:
+        """Publish everything queued at the pace (blocking), then wait up to ACK_TIMEOUT_S for
+        the readers' acknowledgements; whether all were acknowledged."""
+        while self.pending:
+            self._credit = self.slice
+            self._publish(self.slice)
+            if self.pending:
+                time.sleep(self.slice / self.flush_rate_hz)
+        self._timer.cancel()
+        self._live, self._credit = 0, 0.0
+        return bool(self._pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S)))
+
+    def destroy(self) -> None:
+        """Release the timer (the publisher belongs to the node)."""
+        self._node.destroy_timer(self._timer)
+
+    def _publish(self, budget: int) -> int:
+        """Publish up to ``budget`` queued messages in order; returns the count."""
+        sent = 0
+        msg = self._msg
+        stamp, vec = msg.header.stamp, getattr(msg, self._field)
+        while self._queue and sent < budget:
+            stamps, xyz = self._queue[0]
+            take = min(budget - sent, stamps.size)
+            sec, nsec = np.divmod(stamps[:take], NS_PER_S)
+            for s, ns, (x, y, z) in zip(sec.tolist(), nsec.tolist(), xyz[:take].tolist(),
+                                        strict=True):
+                stamp.sec, stamp.nanosec, vec.x, vec.y, vec.z = s, ns, x, y, z
+                self._pub.publish(msg)
+            if take == stamps.size:
+                self._queue.popleft()
+            else:
+                self._queue[0] = (stamps[take:], xyz[take:])
+            sent += take
+        self.pending -= sent
+        self.published += sent
+        return sent
