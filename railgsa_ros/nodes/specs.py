@@ -64,7 +64,7 @@ NODE_SPECS = (
               'the samples pending in the band filter (about 7 s) are flushed and published, s',
               (0.05, 3600.0)),
     ParamSpec('flush_rate_hz', 2000.0, 'flushed outputs are published at this rate on top of '
-              'the live ones, in slices of at most half output_qos_depth, messages/s',
+              'the live ones, in slices of at most output_qos_depth / 8 per 10 ms, messages/s',
               (10.0, 1e6), read_only=True),
 )
 UNCERTAINTY_SPECS = (
