@@ -344,7 +344,7 @@ def _bad_bags(tmp_path: Path) -> dict[str, tuple[Path, str]]:
         'missing': (tmp_path / 'nope', 'no such bag'),
         'text file': (text, 'not a rosbag2 bag'),
         'empty dir': (empty_dir, 'not a rosbag2 bag'),
-        'truncated': (truncated, 'unreadable bag'),
+        'truncated': (truncated, 'unfinished (no MCAP footer'),
         'corrupt': (corrupt, 'unreadable bag'),
         'garbage db3': (garbage_db3, 'unreadable bag'),
         'empty topic': (tmp_path / 'empty_topic', 'has no messages'),

@@ -109,3 +109,84 @@ def test_recorder_chunks_carry_crcs(tmp_path) -> None:
     record(tmp_path / 'bag', messages, stamps, compress=False).close()
     crcs = chunk_crcs(next((tmp_path / 'bag').glob('*.mcap')))
     assert len(crcs) >= 3 and all(crcs)
+
+
+# ---------------------------------------------------------------------------- recovery
+KILLED_WRITER = '''
+import os, signal, sys, time
+sys.path.insert(0, sys.argv[2])
+from test_bag_integrity import imu_messages
+from railgsa_ros.playback.recording import BagRecorder, TopicSpec
+from railgsa_ros.bag.messages import IMU
+stamps, _, messages = imu_messages(int(sys.argv[3]))
+bag = BagRecorder(sys.argv[1], split_s=2.0, compress=sys.argv[4] == 'zstd')
+bag.add_topic(TopicSpec('/imu/data', IMU.msgtype))
+for i, (stamp, data) in enumerate(zip(stamps, messages)):
+    bag.write('/imu/data', int(stamp), data)
+    if i % 1000 == 999:
+        bag.tick(int(stamp))  # what the recorder node does every second
+os.kill(os.getpid(), signal.SIGKILL)
+'''
+
+
+@pytest.mark.parametrize('compress', ['zstd', 'none'])
+def test_recover_after_sigkill_keeps_everything_up_to_the_last_flush(tmp_path, capsys,
+                                                                     compress) -> None:
+    """A recorder process killed 0.5 s after its last 1 s flush, 1.5 s into its third split
+    file: the readers refuse the bag naming the unfinished file; ``railgsa recover`` makes it
+    readable by our reader, rosbags and mcap, with every message up to the last flush."""
+    import subprocess
+    import sys
+
+    n = 5500  # 5.5 s at 1 kHz: files of 2 s, flushes every 1000 messages
+    bag = tmp_path / 'rec'
+    proc = subprocess.run([sys.executable, '-c', KILLED_WRITER, str(bag),
+                           str(Path(__file__).parent), str(n), compress], timeout=120)
+    assert proc.returncode == -9
+    stamps, acc_z, messages = imu_messages(n)
+    unfinished = bag / 'rec_2.mcap'
+    with pytest.raises(InputError, match=f'^{bag}: {unfinished.name} is unfinished .*railgsa '
+                                         f'recover {bag}'):
+        read_imu(bag)
+    assert main(['recover', str(bag)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out == ['rec_0.mcap: finished, 2000 messages', 'rec_1.mcap: finished, 2000 messages',
+                   'rec_2.mcap: recovered, 1000 messages']
+    kept = 5000  # everything up to the last flush; the 500 after it were in memory only
+    stream = read_imu(bag)
+    assert np.array_equal(stream.stamps_ns, stamps[:kept])
+    assert np.array_equal(stream.accel[:, 2], acc_z[:kept])
+    with AnyReader([bag]) as reader:
+        assert [bytes(raw) for _, _, raw in reader.messages()] == messages[:kept]
+    got = []
+    for file in sorted(bag.glob('*.mcap')):
+        with file.open('rb') as f:
+            got += [m.data for _, _, m in make_reader(f, validate_crcs=True).iter_messages()]
+    assert got == messages[:kept]
+    assert (bag / 'rec_2.mcap.orig').exists()  # the original is kept
+    assert main(['recover', str(bag)]) == 0  # again: nothing left to do
+    assert capsys.readouterr().out.splitlines()[-1] == 'rec_2.mcap: finished, 1000 messages'
+
+
+def test_recover_drops_a_damaged_chunk_and_keeps_the_rest(tmp_path, capsys) -> None:
+    stamps, acc_z, messages = imu_messages(3500)
+    bag = tmp_path / 'rec'
+    record(bag, messages, stamps, compress=False)  # not closed: unfinished, as killed
+    file = bag / 'rec_0.mcap'
+    data = bytearray(file.read_bytes())
+    at = data.find(struct.pack('<d', acc_z[1500]))
+    data[at] ^= 0xFF  # inside the second chunk (flushed after messages 1000, 2000, 3000)
+    file.write_bytes(bytes(data))
+    assert main(['recover', str(bag)]) == 0
+    assert capsys.readouterr().out == 'rec_0.mcap: recovered, 2001 messages, 1 damaged ' \
+                                      'chunk(s) dropped\n'
+    with AnyReader([bag]) as reader:
+        got = [bytes(raw) for _, _, raw in reader.messages()]
+    assert got == messages[:1001] + messages[2001:3001]  # the last 499 were never flushed
+
+
+def test_recover_refuses_what_is_not_a_bag(tmp_path, capsys) -> None:
+    assert main(['recover', str(tmp_path / 'missing')]) == 2
+    assert 'not a bag directory or .mcap file' in capsys.readouterr().err
+    assert main(['recover', str(tmp_path)]) == 2
+    assert capsys.readouterr().err == f'error: {tmp_path}: no .mcap file to recover\n'

@@ -14,7 +14,7 @@ rosbags as before.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from io import BytesIO
@@ -51,16 +51,19 @@ _MESSAGE = struct.Struct('<HIQQ')  # MCAP message: channel id, sequence, log and
 
 
 def storage_paths(path: str | Path) -> list[Path]:
-    """The paths to hand to rosbags for ``path``; InputError if it cannot be a rosbag2 bag."""
+    """The paths to hand to rosbags for ``path``; InputError if it cannot be a rosbag2 bag, or
+    when an MCAP file of it is unfinished (``mcap_finished``: run ``railgsa recover``)."""
     path = Path(path)
+    if path.is_file() and path.name == 'metadata.yaml':
+        path = path.parent
     if path.is_file():
-        if path.name == 'metadata.yaml':
-            return [path.parent]
-        if path.suffix in STORAGE_SUFFIXES:
-            return [path]
-        raise InputError(f'{path}: not a rosbag2 bag (expected a directory, .mcap or .db3)')
+        if path.suffix not in STORAGE_SUFFIXES:
+            raise InputError(f'{path}: not a rosbag2 bag (expected a directory, .mcap or .db3)')
+        _refuse_unfinished(path, [path])
+        return [path]
     if not path.is_dir():
         raise InputError(f'{path}: no such bag')
+    _refuse_unfinished(path, path.glob('*.mcap'))
     if (path / 'metadata.yaml').is_file():
         return [path]
     for suffix in STORAGE_SUFFIXES:
@@ -68,6 +71,32 @@ def storage_paths(path: str | Path) -> list[Path]:
         if files:
             return files
     raise InputError(f'{path}: not a rosbag2 bag (no metadata.yaml, .mcap or .db3 file)')
+
+
+def mcap_finished(file: Path) -> bool:
+    """Whether an MCAP file ends with its footer and closing magic (its writer finished it; a
+    killed recorder leaves neither)."""
+    tail_size = _RECORD.size + 20 + len(MCAP0_MAGIC)  # footer record, magic
+    try:
+        with file.open('rb') as stream:
+            size = stream.seek(0, os.SEEK_END)
+            if size < len(MCAP0_MAGIC) + tail_size:
+                return False
+            stream.seek(size - tail_size)
+            tail = stream.read()
+    except OSError:
+        return False
+    return tail[0] == Opcode.FOOTER and tail.endswith(MCAP0_MAGIC)
+
+
+def _refuse_unfinished(bag: Path, files: Iterable[Path]) -> None:
+    """InputError naming ``bag`` and the first unfinished .mcap of ``files``: readers would
+    miss it (not in metadata.yaml) or fail on it (no summary)."""
+    for file in sorted(f for f in files if f.suffix == '.mcap'):
+        if not mcap_finished(file):
+            which = '' if file == bag else f'{file.name} is '
+            raise InputError(f'{bag}: {which}unfinished (no MCAP footer: its recorder was '
+                             f'killed?); run "railgsa recover {bag}" to make it readable')
 
 
 def _one_line(exc: BaseException) -> str:

@@ -41,7 +41,7 @@ class TopicSpec:
 
 
 @dataclass
-class _Segment:
+class Segment:
     """One finished storage file: name, message count and log-time span (ns)."""
 
     name: str
@@ -69,7 +69,7 @@ class BagRecorder:
         self.split_ns = round(split_s * 1e9)
         self.compression = CompressionType.ZSTD if compress else CompressionType.NONE
         self.topics: dict[str, TopicSpec] = {}
-        self.segments: list[_Segment] = []
+        self.segments: list[Segment] = []
         self._file = None
         self._writer: Writer | None = None
         self._channels: dict[str, int] = {}
@@ -159,7 +159,7 @@ class BagRecorder:
         self._writer.finish()
         os.fsync(self._file.fileno())
         self._file.close()
-        self.segments.append(_Segment(self._file_path().name, sum(self._pending.values()),
+        self.segments.append(Segment(self._file_path().name, sum(self._pending.values()),
                                       self._seg_start, self._seg_end))
         for topic, count in self._pending.items():
             self.topics[topic].count += count
@@ -168,32 +168,9 @@ class BagRecorder:
 
     def _write_metadata(self) -> None:
         """Write metadata.yaml (version 9) for the finished files, atomically."""
-        start = min((s.start_ns for s in self.segments), default=0)
-        end = max((s.end_ns for s in self.segments), default=0)
-        info = {
-            'version': 9, 'storage_identifier': 'mcap',
-            'relative_file_paths': [s.name for s in self.segments],
-            'duration': {'nanoseconds': end - start},
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': sum(s.count for s in self.segments),
-            'topics_with_message_count': [
-                {'topic_metadata': {'name': t.name, 'type': t.msgtype,
-                                    'serialization_format': 'cdr',
-                                    'offered_qos_profiles': dump_qos_v9(t.offered_qos),
-                                    'type_description_hash': t.type_hash},
-                 'message_count': t.count}
-                for t in self.topics.values()],
-            'compression_format': '', 'compression_mode': '',
-            'files': [{'path': s.name, 'starting_time': {'nanoseconds_since_epoch': s.start_ns},
-                       'duration': {'nanoseconds': s.end_ns - s.start_ns},
-                       'message_count': s.count} for s in self.segments],
-            'custom_data': None, 'ros_distro': 'jazzy'}
-        tmp = self.path / 'metadata.yaml.tmp'
-        with open(tmp, 'w', encoding='utf-8') as out:
-            yaml.safe_dump({'rosbag2_bagfile_information': info}, out, sort_keys=False)
-            out.flush()
-            os.fsync(out.fileno())
-        tmp.replace(self.path / 'metadata.yaml')
+        write_metadata(self.path, self.segments, [
+            topic_entry(t.name, t.msgtype, dump_qos_v9(t.offered_qos), t.type_hash, t.count)
+            for t in self.topics.values()])
 
     def _guarded(self, action: Callable[[], None]) -> None:
         """Run ``action``; on OSError abandon the file in progress and raise ConfigError."""
@@ -217,6 +194,39 @@ class BagRecorder:
                        f'messages in {len(self.segments)} finished file(s) of {self.path} stay '
                        'readable')
         return self.failed
+
+
+def topic_entry(name: str, msgtype: str, qos: list[dict], type_hash: str,
+                count: int) -> dict:
+    """One ``topics_with_message_count`` entry of metadata.yaml (QoS as dumped for version 9)."""
+    return {'topic_metadata': {'name': name, 'type': msgtype, 'serialization_format': 'cdr',
+                               'offered_qos_profiles': qos, 'type_description_hash': type_hash},
+            'message_count': count}
+
+
+def write_metadata(path: Path, segments: list[Segment], topics: list[dict]) -> None:
+    """Write ``path/metadata.yaml`` (rosbag2 version 9, MCAP) listing ``segments`` with the
+    ``topics`` entries (``topic_entry``), atomically (temporary file, fsync, rename)."""
+    start = min((s.start_ns for s in segments), default=0)
+    end = max((s.end_ns for s in segments), default=0)
+    info = {
+        'version': 9, 'storage_identifier': 'mcap',
+        'relative_file_paths': [s.name for s in segments],
+        'duration': {'nanoseconds': end - start},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': sum(s.count for s in segments),
+        'topics_with_message_count': topics,
+        'compression_format': '', 'compression_mode': '',
+        'files': [{'path': s.name, 'starting_time': {'nanoseconds_since_epoch': s.start_ns},
+                   'duration': {'nanoseconds': s.end_ns - s.start_ns},
+                   'message_count': s.count} for s in segments],
+        'custom_data': None, 'ros_distro': 'jazzy'}
+    tmp = path / 'metadata.yaml.tmp'
+    with open(tmp, 'w', encoding='utf-8') as out:
+        yaml.safe_dump({'rosbag2_bagfile_information': info}, out, sort_keys=False)
+        out.flush()
+        os.fsync(out.fileno())
+    tmp.replace(path / 'metadata.yaml')
 
 
 def _qos_yaml(profiles: list[Qos]) -> str:

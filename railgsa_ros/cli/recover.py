@@ -1,0 +1,28 @@
+"""``railgsa recover``: rewrite a bag cut short by a killed recorder into a readable one."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``recover`` subcommand."""
+    p = subparsers.add_parser(
+        'recover', help='make a recording cut short (SIGKILL, power cut) readable again',
+        description='Rewrite every unfinished MCAP file of the bag directory BAG (no footer: '
+                    'its recorder was killed) from its complete records, up to about its last '
+                    'second with railgsa record, keeping the original as NAME.mcap.orig, and '
+                    'write metadata.yaml for all files. Finished files are left alone.')
+    p.add_argument('bag', metavar='BAG', help='bag directory (or a bare .mcap file)')
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Recover and print one line per file."""
+    from railgsa_ros.playback.recover import recover_bag
+
+    for r in recover_bag(args.bag):
+        extra = ''.join([f', {r.bad_chunks} damaged chunk(s) dropped' if r.bad_chunks else '',
+                         f', {r.cut_bytes} bytes after the cut' if r.cut_bytes else ''])
+        print(f'{r.name}: {r.status}, {r.messages} messages{extra}')
+    return 0
