@@ -11,3 +11,8 @@ class ConfigError(RailGsaError):
 
 class InputError(RailGsaError):
     """Unusable input data: an unreadable, empty, truncated or corrupt file or stream."""
+
+
+class InputWarning(UserWarning):
+    """Input data used with a loss that is counted and reported (malformed messages skipped);
+    the CLI prints it as one line ``warning: <message>``."""

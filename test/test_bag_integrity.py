@@ -21,7 +21,7 @@ from railgsa_ros.bag.cdr import encode
 from railgsa_ros.bag.messages import IMU, IMU_FIELDS
 from railgsa_ros.bag.reader import _mcap_topics
 from railgsa_ros.cli.main import main
-from railgsa_ros.errors import InputError
+from railgsa_ros.errors import InputError, InputWarning
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
 
 RATE_HZ = 1000
@@ -190,3 +190,36 @@ def test_recover_refuses_what_is_not_a_bag(tmp_path, capsys) -> None:
     assert 'not a bag directory or .mcap file' in capsys.readouterr().err
     assert main(['recover', str(tmp_path)]) == 2
     assert capsys.readouterr().err == f'error: {tmp_path}: no .mcap file to recover\n'
+
+
+# ---------------------------------------------------------------------------- malformed messages
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_reader_counts_and_skips_malformed_messages(tmp_path, capsys, storage) -> None:
+    """A 0-byte, a truncated and a header-only Imu among 3000 good ones: the offline reader
+    skips exactly those, says so on one warning line, and inverts the rest."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from railgsa_ros.bag.reader import iter_imu
+    from railgsa_ros.bag.messages import typestore
+
+    stamps, acc_z, messages = imu_messages(3000)
+    bad = {10: b'', 1500: messages[1500][:50], 2999: b'\x00\x01\x00\x00'}
+    bag = tmp_path / 'bag'
+    with Writer(bag, version=9, storage_plugin=StoragePlugin[storage.upper()]) as writer:
+        conn = writer.add_connection('/imu/data', IMU.msgtype, typestore=typestore())
+        for i, stamp in enumerate(stamps):
+            writer.write(conn, int(stamp), bad.get(i, messages[i]))
+    good = np.array([i not in bad for i in range(stamps.size)])
+    with pytest.warns(InputWarning, match=r'^3 malformed sensor_msgs/msg/Imu message\(s\) '
+                                          r'skipped .* first at log time 1700000000\.010000 s'):
+        stream = read_imu(bag)
+    assert np.array_equal(stream.stamps_ns, stamps[good])
+    assert np.array_equal(stream.accel[:, 2], acc_z[good])
+    with pytest.warns(InputWarning):
+        pieces = list(iter_imu(bag, chunk=1000))
+    assert np.array_equal(np.concatenate([p.stamps_ns for p in pieces]), stamps[good])
+    out = tmp_path / 'u.csv'
+    assert main(['invert', str(bag), '--csv', str(out), '--speed', '20']) == 0
+    err = capsys.readouterr().err
+    assert err.startswith('warning: ') and 'malformed sensor_msgs/msg/Imu' in err, err
+    assert len(out.read_text().splitlines()) - 1 == good.sum()

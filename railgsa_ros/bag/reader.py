@@ -22,6 +22,7 @@ import os
 from pathlib import Path
 import struct
 from typing import Any
+import warnings
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
@@ -43,7 +44,7 @@ from railgsa_ros.bag.messages import (
     typestore,
 )
 from railgsa_ros.config import load_yaml
-from railgsa_ros.errors import ConfigError, InputError, RailGsaError
+from railgsa_ros.errors import ConfigError, InputError, InputWarning, RailGsaError
 
 STORAGE_SUFFIXES = ('.mcap', '.db3')
 _RECORD = struct.Struct('<BQ')  # MCAP record: opcode, content length
@@ -344,16 +345,44 @@ def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
     """Messages of a fixed-layout type collected from rosbags as arrays: vectorised when they are
     plain CDR, else deserialised one by one with the bag's own definitions."""
     layout = LAYOUTS[msgtype]
+    times = np.array(times, dtype=np.int64)
     try:
         dec = cdr.decode(layout, raws)
-        stamps, strings, values = dec.stamps_ns, dec.strings, dec.values
     except ValueError:
-        flat = [flatten(reader.deserialize(r, msgtype), msgtype) for r in raws]
-        stamps = np.array([f[0] for f in flat], dtype=np.int64)
-        strings = tuple(np.array([f[1][j] for f in flat], dtype=str)
-                        for j in range(layout.n_strings))
-        values = np.array([f[2] for f in flat]).reshape(len(flat), layout.n_doubles)
-    return TopicData(np.array(times, dtype=np.int64), stamps, strings, values)
+        dec, keep = _decode_each(reader, msgtype, raws)
+        if keep.size < times.size:
+            bad = np.setdiff1d(np.arange(times.size), keep)
+            warnings.warn(InputWarning(
+                f'{bad.size} malformed {msgtype} message(s) skipped (empty or truncated; first '
+                f'at log time {times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
+        times = times[keep]
+    return TopicData(times, dec.stamps_ns, dec.strings, dec.values)
+
+
+def _decode_each(reader: AnyReader, msgtype: str,
+                 raws: list[bytes]) -> tuple[cdr.Decoded, np.ndarray]:
+    """Messages that are not all plain CDR: the well-formed plain ones vectorised, the others by
+    rosbags with the bag's own definitions; those neither can read (0-byte, truncated) are
+    left out. Returns the decoded messages and their indices into ``raws`` (in order)."""
+    layout = LAYOUTS[msgtype]
+    plain = np.array([cdr.well_formed(layout, r) for r in raws], dtype=bool)
+    keep, flat = list(np.flatnonzero(plain)), []
+    for i in np.flatnonzero(~plain):
+        try:
+            flat.append(flatten(reader.deserialize(raws[i], msgtype), msgtype))
+            keep.append(i)
+        except Exception:  # rosbags raises SerdeError, struct.error, ...
+            continue
+    fast = cdr.decode(layout, [raws[i] for i in np.flatnonzero(plain)])
+    stamps = np.concatenate([fast.stamps_ns, np.array([f[0] for f in flat], dtype=np.int64)])
+    strings = tuple(np.concatenate([fast.strings[j], np.array([f[1][j] for f in flat],
+                                                                dtype=str)])
+                    for j in range(layout.n_strings))
+    values = np.concatenate([fast.values,
+                             np.array([f[2] for f in flat]).reshape(-1, layout.n_doubles)])
+    order = np.argsort(keep, kind='stable')
+    return (cdr.Decoded(stamps[order], tuple(s[order] for s in strings), values[order]),
+            np.asarray(keep, dtype=np.int64)[order])
 
 
 def read_stamped(path: str | Path, topic: str, msgtype: str) -> TopicData:

@@ -1,6 +1,7 @@
 """Entry point of ``railgsa``: discovers the subcommand modules and maps errors to exit codes.
 
-RailGsaError -> ``error: <message>`` on stderr and exit code 2 (no traceback); Ctrl-C -> 130.
+RailGsaError -> ``error: <message>`` on stderr and exit code 2 (no traceback); Ctrl-C -> 130;
+an InputWarning (data skipped and counted) -> ``warning: <message>`` on stderr.
 """
 
 from __future__ import annotations
@@ -9,9 +10,10 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import warnings
 
 from railgsa_ros import __version__, cli
-from railgsa_ros.errors import RailGsaError
+from railgsa_ros.errors import InputWarning, RailGsaError
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -36,14 +38,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``railgsa`` with ``argv`` (default: sys.argv[1:]); returns the exit code."""
-    try:
-        args = build_parser().parse_args(argv)
-        return int(args.func(args) or 0)
-    except RailGsaError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return EXIT_USAGE
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
+    with warnings.catch_warnings():
+        show = warnings.showwarning
+        warnings.showwarning = lambda message, category, *rest, **kw: print(
+            f'warning: {message}', file=sys.stderr) if issubclass(category, InputWarning) \
+            else show(message, category, *rest, **kw)
+        warnings.simplefilter('always', InputWarning)
+        try:
+            args = build_parser().parse_args(argv)
+            return int(args.func(args) or 0)
+        except RailGsaError as exc:
+            print(f'error: {exc}', file=sys.stderr)
+            return EXIT_USAGE
+        except KeyboardInterrupt:
+            return EXIT_INTERRUPTED
 
 
 if __name__ == '__main__':
