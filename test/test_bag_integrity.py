@@ -199,8 +199,8 @@ def test_reader_counts_and_skips_malformed_messages(tmp_path, capsys, storage) -
     skips exactly those, says so on one warning line, and inverts the rest."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from railgsa_ros.bag.reader import iter_imu
     from railgsa_ros.bag.messages import typestore
+    from railgsa_ros.bag.reader import iter_imu
 
     stamps, acc_z, messages = imu_messages(3000)
     bad = {10: b'', 1500: messages[1500][:50], 2999: b'\x00\x01\x00\x00'}
