@@ -21,7 +21,7 @@ KEYS = ('accepted', 'nan', 'saturated', 'stuck', 'out_of_order', 'duplicate', 'g
 
 @pytest.fixture
 def node(ros_context: Any) -> Iterator[Any]:
-    """An active IrregularityNode (default gap policy bridge, max_bridge_s 0.2, stuck_s 0.5)."""
+    """An active IrregularityNode (default gap policy bridge, max_bridge_s 1.2, stuck_s 0.5)."""
     from rclpy.parameter import Parameter
 
     from railgsa_ros.nodes.irregularity_node import IrregularityNode
@@ -63,8 +63,8 @@ def _inject(kind: str, acc: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray,
     ('nan', {'accepted': 5950, 'nan': 50, 'gap': 1, 'bridged': 50}),
     ('saturated', {'accepted': 5900, 'saturated': 100, 'gap': 1, 'bridged': 100}),
     # samples 2501..2999 repeat sample 2000 for more than stuck_s = 0.5 s; the 0.5 s hole they
-    # leave is longer than max_bridge_s: a reset
-    ('stuck', {'accepted': 5501, 'stuck': 499, 'gap': 1, 'reset': 1}),
+    # leave is bridged (max_bridge_s 1.2 s); the 3 s gap resets
+    ('stuck', {'accepted': 5501, 'stuck': 499, 'gap': 1, 'bridged': 499}),
     ('gap', {'accepted': 3000, 'gap': 1, 'reset': 1}),
 ])
 def test_bad_stretch_counted_by_reason_without_a_spike(kind: str, expected: dict, run: Any,

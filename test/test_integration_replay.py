@@ -322,10 +322,10 @@ def test_injected_faults_are_counted_by_reason(tmp_path: Path, ros_context: Any,
     swap_at = [2000, 4000, 6000]  # header stamps of k and k + 1 exchanged: k + 1 is late
     for k in swap_at:
         stamps[[k, k + 1]] = stamps[[k + 1, k]]
-    bridged = {3000: 40, 7000: 120}  # dropouts of these lengths (<= max_bridge_s 0.2 s)
-    reset_at = 9000  # a 0.5 s dropout: longer than max_bridge_s, so the filters restart
+    bridged = {3000: 40, 7000: 120}  # dropouts of these lengths (<= max_bridge_s 1.2 s)
+    reset_at = 9000  # a 1.5 s dropout: longer than max_bridge_s, so the filters restart
     keep = np.ones(stamps.size, bool)
-    for k, n in {**bridged, reset_at: 500}.items():
+    for k, n in {**bridged, reset_at: 1500}.items():
         keep[k:k + n] = False
     fields = ('stamps_ns', 'accel', 't_true_s', 'speed_mps', 'chainage_m', 'truth_u_m')
     arrived = replace(run, accel=accel)

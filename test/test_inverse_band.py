@@ -21,8 +21,12 @@ from railgsa_ros.inverse.convolve import PartitionedFir
 def test_band_edges_follow_speed():
     assert band_edges_hz('d1', 20.0) == pytest.approx((20 / 25, 20 / 3))
     assert band_edges_hz('d2', 35.0) == pytest.approx((0.5, 1.4))
-    with pytest.raises(ConfigError, match='band'):
-        band_edges_hz('d3', 20.0)
+    assert band_edges_hz('d3', 35.0) == pytest.approx((35 / 200, 0.5))
+    assert band_edges_hz('2:70', 14.0) == pytest.approx((0.2, 7.0))
+    assert band_edges_hz('wide', 20.0) == pytest.approx((0.1, 20.0))
+    for bad in ('d4', '70:2', '0:5', 'a:b', '1:2:3'):
+        with pytest.raises(ConfigError, match='band'):
+            band_edges_hz(bad, 20.0)
 
 
 @pytest.mark.parametrize('order', [1, 2, 4])

@@ -7,6 +7,9 @@ low-pass prototype order; 2n poles) run forward and backward, i.e. the real, zer
 -6 dB at the band edges, 40 n dB per decade on each side. The FIR taps sample a response on a
 dense FFT grid, are centred (delay D samples) and cut to 2 D + 1 taps where the impulse response
 has decayed below a tolerance; ``truncation_error`` measures what the cut costs.
+
+A band is named (``band_limits``): the EN 13848 bands d1, d2, d3, ``wide`` (WIDE_M: for users
+who filter themselves; what limits it is in docs/inversion.md) or custom limits 'LMIN:LMAX' (m).
 """
 
 from __future__ import annotations
@@ -18,17 +21,35 @@ from scipy import fft
 
 from railgsa_ros.errors import ConfigError
 
-BANDS_M = {'d1': (3.0, 25.0), 'd2': (25.0, 70.0)}  # EN 13848 longitudinal level, m
+BANDS_M = {'d1': (3.0, 25.0), 'd2': (25.0, 70.0), 'd3': (70.0, 200.0)}  # EN 13848, m
+#: 'wide': the shortest wave is ~4 samples of the 0.25 m chainage grid and well inside the
+#: IMU bandwidth (ADXL355 ODR/4 = 250 Hz holds 1 m up to 250 m/s), the longest is D3's edge
+WIDE_M = (1.0, 200.0)
 _DESIGN_PERIODS = 32  # default span of a design grid, periods of the lowest band frequency
 
 Response = Callable[[np.ndarray], np.ndarray]
 
 
+def band_limits(band: str) -> tuple[float, float]:
+    """Wavelength limits (lambda_min, lambda_max) m of a band name: d1, d2, d3, wide or
+    'LMIN:LMAX' (0 < LMIN < LMAX, m); ConfigError otherwise."""
+    if band in BANDS_M:
+        return BANDS_M[band]
+    if band == 'wide':
+        return WIDE_M
+    try:
+        lmin, lmax = (float(x) for x in str(band).split(':'))
+    except ValueError:
+        raise ConfigError(f'band: expected {", ".join(BANDS_M)}, wide, none or LMIN:LMAX in m '
+                          f'(e.g. 2:70), got {band!r}') from None
+    if not (0.0 < lmin < lmax < 1e5):
+        raise ConfigError(f'band: {band!r}: expected 0 < LMIN < LMAX < 1e5 m')
+    return lmin, lmax
+
+
 def band_edges_hz(band: str, speed_mps: float) -> tuple[float, float]:
-    """Frequency band (Hz) of wavelength band ``band`` ('d1' or 'd2') at speed_mps (m/s)."""
-    if band not in BANDS_M:
-        raise ConfigError(f'band: expected one of {", ".join(BANDS_M)} or none, got {band!r}')
-    lmin, lmax = BANDS_M[band]
+    """Frequency band (Hz) of wavelength band ``band`` (``band_limits``) at speed_mps (m/s)."""
+    lmin, lmax = band_limits(band)
     return speed_mps / lmax, speed_mps / lmin
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from railgsa_ros.config import check_field, key_list, load_yaml, ros_parameters
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.inverse.band import band_limits
 from railgsa_ros.inverse.feedback import UNSUPPORTED, check_gain
 
 NODE_NAME = 'irregularity_node'
@@ -33,8 +34,8 @@ class InversionConfig:
     """Validated pipeline parameters (SI units); see docs/inversion.md for the full table."""
 
     method: str = _p('spectral', 'inversion method', choices=METHODS)
-    band: str = _p('d1', 'EN 13848 wavelength band: d1 3-25 m, d2 25-70 m, none (paper mode)',
-                   choices=('d1', 'd2', 'none'))
+    band: str = _p('d1', 'wavelength band: d1 3-25 m, d2 25-70 m, d3 70-200 m (EN 13848), wide '
+                         '1-200 m, LMIN:LMAX in m, none (paper mode)')
     gain: float = _p(1000.0, 'feedback gain K^c of Eq. 7, s^2 (m of u per m/s^2), > 0', (0.0, INF))
     band_order: int = _p(2, 'Butterworth band-pass prototype order n (run forward-backward)',
                          (1, 8))
@@ -51,6 +52,9 @@ class InversionConfig:
                                'interpolation); single rate when false or R < 2')
     speed_tolerance: float = _p(0.005, 'relative speed change that triggers a filter redesign',
                                 (1e-4, 1.0))
+    sensor_delay_s: float = _p(0.0, 'group delay of the IMU digital low-pass filter, s: the '
+                                     'signal is advanced by it (inverse.sensor.sensor_delay_s '
+                                     'gives it for a preset)', (0.0, 1.0))
     accel_axis: str = _p('z', 'IMU axis (with sign) pointing up in the car body', choices=AXES)
     gravity_mps2: float = _p(9.80665, 'gravity subtracted from the vertical axis, m/s^2',
                              (0.0, 20.0))
@@ -67,7 +71,8 @@ class InversionConfig:
     smoother: bool = _p(False, 'kalman: offline RTS smoother (outputs at flush)')
     gap_factor: float = _p(3.0, 'a step above this many nominal periods is a gap', (1.0, 1e6))
     gap_policy: str = _p('bridge', 'gap handling', choices=('reset', 'bridge'))
-    max_bridge_s: float = _p(0.2, 'bridge policy: longest gap interpolated, s', (0.0, 10.0))
+    max_bridge_s: float = _p(1.2, 'bridge policy: longest gap filled by the model (gapfill), '
+                                  's', (0.0, 10.0))
     saturation_mps2: float = _p(19.6133, 'accelerometer range, m/s^2 (0 = no check; '
                                                   'ADXL355 +-2 g)',
                                 (0.0, 1e4))
@@ -84,8 +89,10 @@ class InversionConfig:
         for f in fields(self):
             value = getattr(self, f.name)
             object.__setattr__(self, f.name, _check(f.name, value, f.default, f.metadata))
+        if self.band != 'none':
+            band_limits(self.band)
         if self.method == 'spectral' and self.band == 'none':
-            raise ConfigError('band: the spectral method needs a band (d1 or d2): the exact '
+            raise ConfigError('band: the spectral method needs a band (d1, d2, ...): the exact '
                               'inverse has a double pole at s = 0')
         if self.method == 'spectral' and self.band_order < 2:
             raise ConfigError('band_order: the spectral method needs 2 or more: |BP|^2 / G falls '

@@ -38,6 +38,7 @@ from railgsa_ros.inverse.band import (
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.feedback import FeedbackInverse, Stability
+from railgsa_ros.inverse.gapfill import GapFiller
 from railgsa_ros.inverse.kalman import KalmanInverse
 from railgsa_ros.inverse.multirate import (
     MultirateFir,
@@ -169,6 +170,9 @@ class InversionPipeline:
             self._fir = self._band_stage()
             self.switch_period = self._fir.switch_period
             self._design_speed = cfg.min_design_speed_mps
+        self._gaps = GapFiller(np.mean(self.theta, axis=0), cfg.track_spectrum_av, cfg.rate_hz,
+                               cfg.noise_std_mps2 ** 2 if noise_variance is None
+                               else float(noise_variance))
         self._chain: tuple[int, float, float] | None = None  # last stamp, chainage, speed
         self.start_chainage_m = float(start_chainage_m)  #: chainage of the first sample, m
         self._offline: list[tuple[np.ndarray, ...]] = []
@@ -235,10 +239,14 @@ class InversionPipeline:
 
     # ----------------------------------------------------------------- internals
     def _response(self, speed: float) -> np.ndarray:
-        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in."""
+        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in,
+        advanced by ``sensor_delay_s``: the output at an IMU stamp is the track under the wheel
+        at that stamp, so stamp and chainage stay the sample's own."""
         cfg = self.config
         lo, hi = band_edges_hz(cfg.band, max(speed, cfg.min_design_speed_mps))
         bp = bandpass_power(self._grid, lo, hi, cfg.band_order)[None] * self._rolloff
+        if cfg.sensor_delay_s:  # advance by the sensor's group delay: exp(+j w tau)
+            bp = bp * np.exp(2j * np.pi * self._grid * cfg.sensor_delay_s)
         if cfg.method != 'spectral':
             return bp
         if self._inv_g is None:  # 1/G on the design grid does not depend on the speed
@@ -294,6 +302,7 @@ class InversionPipeline:
         self._last_a = 0.0
         self._bias = (0.0, 0)  # running sum (m/s^2) and count of the segment's samples
         self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
+        self._gaps.reset()
         if self._stage is not None:
             self._stage.reset()
         if self._fir is not None:
@@ -304,7 +313,8 @@ class InversionPipeline:
         cfg = self.config
         stamps, speed = clean.stamps_ns[sl], clean.speed[sl]
         chain = self._chainage(stamps, speed)
-        a_s = clean.accel[sl] - cfg.gravity_mps2
+        a_s = self._gaps.bridge(stamps, clean.accel[sl], clean.synthetic[sl], speed) \
+            - cfg.gravity_mps2
         if cfg.remove_bias:
             a_s = self._remove_bias(a_s)
         n0 = self._n + sum(x[0].size for x in self._offline)

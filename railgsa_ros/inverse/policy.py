@@ -22,7 +22,8 @@ policy"):
 - quality per sample (:class:`~railgsa_ros.inverse.quality.Quality`), carried through the band
   delay line; INVALID outputs have u = NaN.
 - plausibility: gravity on the configured axis and sign, the measured rate against
-  ``rate_hz``, speed known, every sample rejected, the frame policy; ``findings`` and
+  ``rate_hz``, the magnitude of the specific force at rest against gravity (scale factor and
+  bias), speed known, every sample rejected, the frame policy; ``findings`` and
   ``status`` say what to do in one line.
 - rebuild on a parameter change (old filters flushed, chainage continued), reset, flush.
 """
@@ -39,7 +40,7 @@ from scipy.signal import lfilter
 
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.observability import NoiseFloor
+from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
 from railgsa_ros.inverse.quality import Quality, quality_counts
 from railgsa_ros.inverse.sanitize import REASONS, SPEED_LIMIT_MPS, frame_mask
@@ -52,6 +53,8 @@ GRAVITY_TAU_S = 1.0  #: time constant of the per-axis running mean that finds gr
 GRAVITY_TOLERANCE = 0.25  #: the vertical axis must read gravity within this fraction
 RATE_BLOCK = 512  #: stamp steps per rate measurement (median: robust to dropouts and jitter)
 REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
+REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
+REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
 AXES = 'xyz'
 _HINTS = {'wrong_frame': "set frame_id to the driver's frame_id or wrong_frame_policy to "
                          'accept',
@@ -97,7 +100,7 @@ class PolicyOptions:
 
 @dataclass(frozen=True)
 class Finding:
-    """One plausibility verdict: key ('gravity', 'rate', 'speed', 'odometry', 'frame',
+    """One plausibility verdict: key ('gravity', 'rate', 'rest', 'speed', 'odometry', 'frame',
     'rejected', 'noise'), level (OK/WARN/ERROR) and a one-line message saying what to do."""
 
     key: str
@@ -177,6 +180,7 @@ class InputPolicy:
         self._rate_ok = True
         self._reject_run = 0  # samples pushed since the last accepted one
         self._start_chainage = 0.0
+        self._rest = (np.zeros(3), 0)  # sum (3,) m/s^2 and count of the samples at rest
         self._check_units()
         if noise_variance is not None:
             self._build()
@@ -515,6 +519,7 @@ class InputPolicy:
         stamps, accel, frames, flags = self._held.pop(count)
         speed, known = self._speeds(stamps)
         self._speed_finding(speed, known)
+        self._rest_check(accel, speed, known)
         quality = np.maximum(flags, self._speed_quality(speed, known))
         strict = self.options.wrong_frame_policy == 'reject'
         before = self.pipeline.counters.get('accepted', 0)
@@ -542,6 +547,29 @@ class InputPolicy:
                 'chainage decreases); if the train ran forward, the odometry sign is reversed'))
         else:
             self._findings['speed'] = Finding('speed', OK, 'speed from odometry')
+
+    def _rest_check(self, accel: np.ndarray, speed: np.ndarray, known: np.ndarray) -> None:
+        """Standing still, the accelerometer reads gravity alone: the magnitude of the mean
+        specific force over every sample at rest checks the scale factor (which scales u) and
+        the bias (finding 'rest', WARN beyond REST_TOLERANCE; off when gravity_mps2 is 0)."""
+        g = self.config.gravity_mps2
+        rest = known & (np.abs(speed) < STANDSTILL_MPS) & np.isfinite(accel).all(axis=1)
+        if g == 0 or not rest.any():
+            return
+        total, count = self._rest
+        self._rest = (total + accel[rest].sum(axis=0), count + int(rest.sum()))
+        if self._rest[1] < REST_S * self.config.rate_hz:
+            return
+        magnitude = float(np.linalg.norm(self._rest[0] / self._rest[1]))
+        error = magnitude / g - 1.0
+        text = (f'at rest the accelerometer reads {magnitude:.4f} m/s^2 against gravity_mps2 '
+                f'{g:g} ({error * 100:+.2f} %: scale factor and bias together')
+        if abs(error) <= REST_TOLERANCE:
+            self._findings['rest'] = Finding('rest', OK, text + ')')
+        else:
+            self._findings['rest'] = Finding('rest', WARN, (
+                f'{text}, more than {REST_TOLERANCE * 100:g} %): the irregularity scales with '
+                'the scale factor; calibrate the IMU or check its units'))
 
     def _reject_finding(self, pushed: int, accepted: int) -> None:
         """ERROR while every sample is rejected: since the start, or for REJECT_RUN_S."""
