@@ -1,11 +1,12 @@
 """MEMS car-body accelerometer model: specific force in ``imu_link`` as REP 145 defines it.
 
 The chain per axis, in order (rail_domain.md section 4, "simulation recipe"):
-white noise at the simulation rate -> linear-phase anti-alias FIR and decimation to the output rate
-(``scipy.signal.resample_poly``, delay compensated) -> + gravity (+g on z at rest, z up) ->
+white noise at the simulation rate -> linear-phase anti-alias FIR and resampling to the output rate
+(polyphase, delay compensated, ``MemsStream``) -> + gravity (+g on z at rest, z up) ->
 scale factor -> + bias (turn-on + random walk) -> saturation at the range -> quantisation to the
 LSB; then stamps with clock drift and jitter, and Gilbert-Elliott dropout bursts. Every effect is
-off when its field is 0 (range: inf), and everything random comes from one seed.
+off when its field is 0 (range: inf), and everything random comes from one seed. ``MemsStream``
+runs the chain over a stream in chunks (state kept); ``measure`` is one chunk of it.
 
 Units: m/s^2, s, Hz; noise density in (m/s^2)/sqrt(Hz) (one-sided), bias random walk in
 (m/s^2)/sqrt(s).
@@ -193,34 +194,163 @@ def rate_ratio(fs_in: float, fs_out: float) -> tuple[int, int]:
     return ratio.numerator, ratio.denominator
 
 
-def dropout_mask(n: int, spec: ImuSpec, rng: np.random.Generator) -> np.ndarray:
-    """Gilbert-Elliott bursts: True where a sample is delivered.
+class Dropouts:
+    """Gilbert-Elliott dropout bursts as a stream: ``take(n)`` -> mask, True where delivered.
 
     Two-state Markov chain with geometric run lengths: bad runs of mean dropout_burst_s, good
-    runs of mean burst * (1 - f) / f, so that the long-run lost fraction is f.
+    runs of mean burst * (1 - f) / f, so that the long-run lost fraction is f. The chain starts
+    in its stationary distribution (geometric runs are memoryless, so the first run is a full
+    one). Run lengths are drawn in fixed batches: the masks do not depend on how n is split.
     """
-    frac = spec.dropout_fraction
-    if frac == 0 or n == 0:
-        return np.ones(n, bool)
-    bad_mean = max(1.0, spec.dropout_burst_s * spec.output_rate_hz)
-    good_mean = max(1.0, bad_mean * (1 - frac) / frac)
-    n_pairs = int(2 * n / (bad_mean + good_mean)) + 16
-    while True:
-        good = rng.geometric(1 / good_mean, n_pairs)
-        bad = rng.geometric(1 / bad_mean, n_pairs)
-        lengths = np.column_stack([good, bad]).ravel()
-        if lengths.sum() >= 2 * n:
-            break
-        n_pairs *= 2
-    states = np.repeat(np.tile([True, False], n_pairs), lengths)
-    # stationary start: begin at a uniformly random point of the alternating sequence
-    offset = rng.integers(0, states.size - n + 1)
-    return states[offset:offset + n]
+
+    BATCH = 256
+
+    def __init__(self, spec: ImuSpec, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.enabled = spec.dropout_fraction > 0
+        if not self.enabled:
+            return
+        frac = spec.dropout_fraction
+        bad_mean = max(1.0, spec.dropout_burst_s * spec.output_rate_hz)
+        good_mean = max(1.0, bad_mean * (1 - frac) / frac)
+        self._p = {True: 1 / bad_mean, False: 1 / good_mean}  # state "bad" -> geometric p
+        self._lengths: dict[bool, list[int]] = {True: [], False: []}
+        self.bad = bool(rng.random() < bad_mean / (bad_mean + good_mean))
+        self.left = self._next(self.bad)
+
+    def _next(self, bad: bool) -> int:
+        if not self._lengths[bad]:
+            self._lengths[bad] = self.rng.geometric(self._p[bad], self.BATCH).tolist()[::-1]
+        return self._lengths[bad].pop()
+
+    def take(self, n: int) -> np.ndarray:
+        """The next n samples' delivery mask."""
+        out = np.ones(n, bool)
+        if not self.enabled:
+            return out
+        pos = 0
+        while pos < n:  # one step per run: runs are long (mean >= 1 burst) next to a chunk
+            step = min(self.left, n - pos)
+            out[pos:pos + step] = not self.bad
+            pos += step
+            self.left -= step
+            if self.left == 0:
+                self.bad = not self.bad
+                self.left = self._next(self.bad)
+        return out
+
+
+def dropout_mask(n: int, spec: ImuSpec, rng: np.random.Generator) -> np.ndarray:
+    """Gilbert-Elliott bursts (``Dropouts``) over n samples: True where a sample is delivered."""
+    return Dropouts(spec, rng).take(n)
+
+
+class MemsStream:
+    """The accelerometer model run over a stream of true accelerations in chunks.
+
+    ``process(a_true)`` takes the next chunk at the input rate ``fs_in`` (Hz) and returns every
+    output sample whose anti-alias window is complete; ``process(..., final=True)`` ends the
+    stream (the signal is held at its last value beyond it, and at its first before the start).
+    Every effect keeps its state (filter history, bias walk, dropout chain, sample counter,
+    random streams), so the output does not depend on how the stream is chunked.
+
+    Why our own polyphase loop instead of ``scipy.signal.resample_poly``: resample_poly only
+    filters a whole array; here each output is a sum over taps in a fixed order, identical
+    whatever the chunk boundaries (bit for bit).
+    """
+
+    def __init__(self, spec: ImuSpec, fs_in: float, seed: int | None = 0,
+                 t0_s: float = 0.0) -> None:
+        self.spec = spec
+        self.fs_in = float(fs_in)
+        self.up, self.down = rate_ratio(fs_in, spec.output_rate_hz)
+        self.taps = antialias_fir(spec, fs_in * self.up) * self.up
+        self.half = (self.taps.size - 1) // 2  # delay of the linear-phase FIR, upsampled samples
+        # one independent stream per effect: switching one effect leaves the others unchanged
+        self._noise, self._walk, self._jitter, drop = np.random.default_rng(seed).spawn(4)
+        self.dropouts = Dropouts(spec, drop)
+        self.t0_s = float(t0_s)
+        self.t0_ns = np.int64(round(t0_s * 1e9))
+        self.pad = (self.taps.size + self.up - 1) // self.up + 1  # held samples at each edge
+        self._buf = np.zeros((0, 3))
+        self._buf_start = 0  # input index of _buf[0] (negative: the held start)
+        self.n_in = 0
+        self.n_out = 0
+        self._walk_sum = np.zeros((1, 3))
+
+    def _available(self, final: bool) -> int:
+        """Number of outputs that the input so far allows."""
+        if final:
+            return -(-self.n_in * self.up // self.down)
+        # output k needs input index floor((k down + half) / up) <= n_in - 1
+        return max(0, (self.n_in * self.up - 1 - self.half) // self.down + 1)
+
+    def process(self, a_true: np.ndarray, final: bool = False) -> ImuSamples:
+        """Feed the next chunk ((n,) vertical or (n, 3), m/s^2); outputs as ``ImuSamples``."""
+        a = np.asarray(a_true, dtype=float)
+        if a.ndim == 1:
+            a = np.column_stack([np.zeros_like(a), np.zeros_like(a), a])
+        spec = self.spec
+        if spec.noise_density > 0:
+            a = a + self._noise.normal(0.0, spec.noise_density * np.sqrt(self.fs_in / 2),
+                                       a.shape)
+        if self.n_in == 0 and a.shape[0]:
+            self._buf = np.repeat(a[:1], self.pad, axis=0)
+            self._buf_start = -self.pad
+        self._buf = np.concatenate([self._buf, a])
+        self.n_in += a.shape[0]
+        if final and self.n_in:
+            self._buf = np.concatenate([self._buf, np.repeat(self._buf[-1:], self.pad, axis=0)])
+        k = np.arange(self.n_out, self._available(final))
+        y = self._filter(k)
+        self.n_out += k.size
+        if k.size:  # keep the inputs the next output still needs
+            first = (self.n_out * self.down + self.half - self.taps.size + 1) // self.up
+            drop = max(0, first - self._buf_start)
+            self._buf = self._buf[drop:]
+            self._buf_start += drop
+        return self._sample(k, y)
+
+    def _filter(self, k: np.ndarray) -> np.ndarray:
+        """Anti-alias FIR and resampling: outputs k (n,) -> (n, 3), taps summed in order."""
+        y = np.zeros((k.size, 3))
+        top = k * self.down + self.half  # upsampled input index under tap 0
+        for n, h in enumerate(self.taps):
+            m = top - n
+            if self.up == 1:
+                y += h * self._buf[m - self._buf_start]
+            else:
+                on = m % self.up == 0
+                y[on] += h * self._buf[m[on] // self.up - self._buf_start]
+        return y
+
+    def _sample(self, k: np.ndarray, y: np.ndarray) -> ImuSamples:
+        """Gravity, scale, bias and its walk, ADC, stamps and dropouts of outputs k."""
+        spec = self.spec
+        dt_out = 1.0 / spec.output_rate_hz
+        y[:, 2] += spec.gravity
+        y *= 1.0 + spec.scale_factor
+        y += np.asarray(spec.bias)
+        if spec.bias_rw > 0:
+            steps = self._walk.normal(0.0, spec.bias_rw * np.sqrt(dt_out), (k.size, 3))
+            walk = np.cumsum(np.concatenate([self._walk_sum, steps]), axis=0)
+            self._walk_sum = walk[-1:]
+            y += walk[1:]
+        if spec.lsb > 0:  # saturate in ADC codes, so that |output| <= range stays a code
+            full = np.floor(spec.range_mps2 / spec.lsb)
+            y = np.clip(np.rint(y / spec.lsb), -full, full) * spec.lsb
+        else:
+            y = np.clip(y, -spec.range_mps2, spec.range_mps2)
+        elapsed = k * dt_out * (1.0 + 1e-6 * spec.clock_drift_ppm)
+        if spec.stamp_jitter_s > 0:
+            elapsed = elapsed + self._jitter.normal(0.0, spec.stamp_jitter_s, k.size)
+        stamps = self.t0_ns + np.rint(elapsed * 1e9).astype(np.int64)
+        return ImuSamples(stamps, y, self.dropouts.take(k.size), self.t0_s + k * dt_out)
 
 
 def measure(t_s: np.ndarray, a_true: np.ndarray, spec: ImuSpec, seed: int | None = 0
             ) -> ImuSamples:
-    """Simulate the accelerometer on a true kinematic acceleration.
+    """Simulate the accelerometer on a true kinematic acceleration (``MemsStream``, one chunk).
 
     t_s: uniform simulation times (s), rate at least twice ``spec.output_rate_hz``;
     a_true: vertical acceleration (T,) or all axes (T, 3), m/s^2, body frame z up.
@@ -237,30 +367,4 @@ def measure(t_s: np.ndarray, a_true: np.ndarray, spec: ImuSpec, seed: int | None
     steps = np.diff(t_s)
     if steps.min() <= 0 or np.ptp(steps) > 1e-6 * steps.mean():
         raise ValueError('measure: t_s must be uniformly spaced and increasing')
-    fs_in = 1.0 / steps.mean()
-    up, down = rate_ratio(fs_in, spec.output_rate_hz)
-    # one independent stream per effect: switching one effect leaves the others unchanged
-    noise_rng, walk_rng, jitter_rng, drop_rng = np.random.default_rng(seed).spawn(4)
-    if spec.noise_density > 0:
-        a = a + noise_rng.normal(0.0, spec.noise_density * np.sqrt(fs_in / 2), a.shape)
-    y = signal.resample_poly(a, up, down, axis=0, window=antialias_fir(spec, fs_in * up),
-                             padtype='line')
-    n = y.shape[0]
-    k = np.arange(n)
-    dt_out = 1.0 / spec.output_rate_hz
-    y[:, 2] += spec.gravity
-    y *= 1.0 + spec.scale_factor
-    y += np.asarray(spec.bias)
-    if spec.bias_rw > 0:
-        y += np.cumsum(walk_rng.normal(0.0, spec.bias_rw * np.sqrt(dt_out), (n, 3)), axis=0)
-    if spec.lsb > 0:  # saturate in ADC codes, so that |output| <= range stays a code
-        full = np.floor(spec.range_mps2 / spec.lsb)
-        y = np.clip(np.rint(y / spec.lsb), -full, full) * spec.lsb
-    else:
-        y = np.clip(y, -spec.range_mps2, spec.range_mps2)
-    elapsed = k * dt_out * (1.0 + 1e-6 * spec.clock_drift_ppm)
-    if spec.stamp_jitter_s > 0:
-        elapsed = elapsed + jitter_rng.normal(0.0, spec.stamp_jitter_s, n)
-    stamps = np.int64(round(t_s[0] * 1e9)) + np.rint(elapsed * 1e9).astype(np.int64)
-    valid = dropout_mask(n, spec, drop_rng)
-    return ImuSamples(stamps, y, valid, t_s[0] + k * dt_out)
+    return MemsStream(spec, 1.0 / steps.mean(), seed, t_s[0]).process(a, final=True)

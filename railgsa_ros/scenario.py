@@ -5,26 +5,33 @@ forward model runs at an internal rate that is a multiple q >= 2 of the IMU outp
 MIN_SIM_RATE_HZ (resolves the 57 Hz wheel-hop mode) and at least POINTS_PER_WAVELENGTH samples over
 the shortest wavelength or defect at the top speed. Output sample k is the simulation sample k q,
 so accel, speed, chainage and truth all refer to the same true sample time t = k / rate_hz.
+
+``RunStream`` produces the run in chunks of bounded size (profile, vehicle and sensor keep their
+state across chunks: the chunks of a run are equal to its one-shot arrays); ``run_scenario``
+gathers one stream into a single ``Run``. The profile is a function of chainage along the line
+(``track.line_profile``): the same seed gives the same track whatever the start or the speed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Iterator
+from dataclasses import dataclass, fields, replace
+import math
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import cumulative_trapezoid
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.imu import FRAME_ID, ImuSpec, accel_covariance, imu_spec, measure
-from railgsa_ros.simulate import simulate
+from railgsa_ros.imu import FRAME_ID, ImuSpec, MemsStream, accel_covariance, imu_spec
+from railgsa_ros.simulate import vehicle_bank
 from railgsa_ros.speed_profile import SpeedProfile
-from railgsa_ros.track import DEFAULT_WAVELENGTHS, apply_defects, make_profile, parse_defects
+from railgsa_ros.track import DEFAULT_WAVELENGTHS, apply_defects, line_profile, parse_defects
 from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
 MIN_SIM_RATE_HZ = 2000.0
 DEFAULT_START_NS = 1_700_000_000 * 10**9  # 2023-11-14: realistic, non-zero (nodes refuse 0)
 POINTS_PER_WAVELENGTH = 20
+DEFAULT_CHUNK_S = 60.0  # RunStream chunk: about 60 s of simulation (bounded memory)
 
 
 @dataclass(frozen=True)
@@ -52,6 +59,15 @@ class Run:
     defects: str | None
     seed: int | None
     frame_id: str = FRAME_ID
+    odom_scale: float = 1.0  # odometry speed = (1 + wheel-diameter error) * true speed
+
+    @classmethod
+    def concat(cls, chunks: list[Run]) -> Run:
+        """One run from consecutive chunks of a stream (arrays joined, dropouts summed)."""
+        arrays = {f.name: np.concatenate([getattr(c, f.name) for c in chunks])
+                  for f in fields(cls) if isinstance(getattr(chunks[0], f.name), np.ndarray)
+                  and f.name != 'vehicle'}
+        return replace(chunks[0], n_dropped=sum(c.n_dropped for c in chunks), **arrays)
 
 
 Speed = float | np.ndarray | SpeedProfile
@@ -98,54 +114,112 @@ def _vehicle(vehicle: VehicleParams | np.ndarray | str | Path | None
     return vehicle
 
 
+class RunStream:
+    """One simulated run as an iterator of ``Run`` chunks of about ``chunk_s`` seconds.
+
+    Arguments as ``run_scenario``. Chunk boundaries fall on multiples of the vehicle bank's
+    block and of q, so every chunk equals the same slice of the one-shot run bit for bit.
+    Memory is bounded by the chunk, whatever the duration.
+    """
+
+    def __init__(self, profile_spec: str, speed_mps: Speed, duration_s: float,
+                 rate_hz: float | None, sensor: str | ImuSpec, seed: int | None = 0,
+                 defects: str | list | None = None,
+                 vehicle: VehicleParams | np.ndarray | str | Path | None = None, *,
+                 wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS,
+                 start_ns: int = DEFAULT_START_NS, start_m: float | None = None,
+                 line_seed: int | None = None, odom_scale: float = 1.0,
+                 chunk_s: float = DEFAULT_CHUNK_S) -> None:
+        spec = imu_spec(sensor) if isinstance(sensor, str) else sensor
+        if rate_hz is not None:
+            spec = replace(spec, output_rate_hz=rate_hz)
+        self.spec = spec
+        rate = spec.output_rate_hz
+        self.n_out = round(duration_s * rate) if np.isfinite(duration_s) else 0
+        if self.n_out < 2:
+            raise ConfigError(f'duration: {duration_s!r} s gives fewer than two samples at '
+                              f'{rate:g} Hz')
+        if not (math.isfinite(odom_scale) and 0.9 < odom_scale < 1.1):
+            raise ConfigError(f'odometry scale: {odom_scale!r} is not within 10 % of 1')
+        self.defects = parse_defects(defects) if not isinstance(defects, list) else defects
+        shortest = min([wavelength_range[0]] + [d.shortest_wavelength for d in self.defects])
+        self.max_speed_mps = float(check_speed(speed_mps).max())
+        self.fs_sim, self.q = simulation_rate(rate, self.max_speed_mps, shortest)
+        self.speed, self.duration_s = speed_mps, float(duration_s)
+        profile_seed, imu_seed = (int(child.generate_state(1)[0])
+                                  for child in np.random.SeedSequence(seed).spawn(2))
+        self.line, origin = line_profile(profile_spec,
+                                         profile_seed if line_seed is None else line_seed,
+                                         wavelength_range)
+        self.start_m = origin if start_m is None else float(start_m)
+        if not math.isfinite(self.start_m):
+            raise ConfigError(f'start chainage: must be finite, got {start_m!r} m')
+        self.theta = _vehicle(vehicle)
+        self.bank = vehicle_bank(self.theta, 1.0 / self.fs_sim)
+        self.mems = MemsStream(spec, self.fs_sim, imu_seed)
+        step = math.lcm(self.bank.block, self.q)
+        self.chunk = step * max(1, int(min(chunk_s * self.fs_sim, 2.0 ** 62)) // step)
+        self.template = Run(
+            stamps_ns=np.zeros(0, np.int64), accel=np.zeros((0, 3)), t_true_s=np.zeros(0),
+            speed_mps=np.zeros(0), chainage_m=np.zeros(0), truth_u_m=np.zeros(0),
+            rate_hz=rate, sim_rate_hz=self.fs_sim, accel_covariance=accel_covariance(spec),
+            n_dropped=0, sensor=spec, vehicle=self.theta, profile=profile_spec,
+            defects=defects if isinstance(defects, str) else None, seed=seed,
+            odom_scale=float(odom_scale))
+        self.start_ns = np.int64(start_ns)
+
+    def __iter__(self) -> Iterator[Run]:
+        n_sim = self.n_out * self.q
+        dt = 1.0 / self.fs_sim
+        travel, v_last = np.zeros(1), None
+        pending = [np.zeros(0)] * 3  # speed, chainage, truth of outputs not yet measured
+        for lo in range(0, n_sim, self.chunk):
+            hi = min(lo + self.chunk, n_sim)
+            index = np.arange(lo, hi)
+            v = speed_at(index * dt, self.speed, self.duration_s)
+            # trapezoidal chainage, summed in one sequence across chunks (np.cumsum is serial)
+            steps = 0.5 * (v[1:] + v[:-1]) * dt if v_last is None else \
+                0.5 * (np.concatenate([[v_last], v[:-1]]) + v) * dt
+            travel = np.cumsum(np.concatenate([travel[-1:], steps]))
+            travel = travel if v_last is None else travel[1:]
+            v_last = v[-1]
+            chainage = self.start_m + travel
+            u = apply_defects(chainage, self.line(chainage), self.defects)
+            imu = self.mems.process(self.bank.process(u)[0, 0], final=hi == n_sim)
+            out = index % self.q == 0
+            pending = [np.concatenate([p, x[out]]) for p, x in
+                       zip(pending, (v, chainage, u), strict=True)]
+            n = imu.stamps_ns.size
+            (speed, chain, truth), pending = [p[:n] for p in pending], [p[n:] for p in pending]
+            keep = imu.valid
+            yield replace(self.template, stamps_ns=imu.stamps_ns[keep] + self.start_ns,
+                          accel=imu.accel[keep], t_true_s=imu.t_true_s[keep],
+                          speed_mps=speed[keep], chainage_m=chain[keep],
+                          truth_u_m=truth[keep], n_dropped=int(np.sum(~keep)))
+
+
 def run_scenario(profile_spec: str, speed_mps: Speed, duration_s: float,
                  rate_hz: float | None, sensor: str | ImuSpec, seed: int | None = 0,
                  defects: str | list | None = None,
                  vehicle: VehicleParams | np.ndarray | str | Path | None = None, *,
                  wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS,
-                 start_ns: int = DEFAULT_START_NS) -> Run:
-    """Simulate one run; see the module docstring.
+                 start_ns: int = DEFAULT_START_NS, start_m: float | None = None,
+                 line_seed: int | None = None, odom_scale: float = 1.0) -> Run:
+    """Simulate one run in one piece (``RunStream`` with one chunk); see the module docstring.
 
-    profile_spec: german-low|german-high|fra-N|paper|file:CSV (track.make_profile); speed_mps: a
-    constant, samples spread evenly over the duration or a ``speed_profile.SpeedProfile``
-    (m/s); duration_s (s); rate_hz: IMU output rate (None:
-    the preset's); sensor: preset name or ImuSpec; seed drives profile and sensor (independent
-    streams); defects: spec string or list (track.parse_defects); vehicle: VehicleParams, theta
-    (5,), a vehicle YAML path or None (Table 1); start_ns: stamp of the first sample (ns;
-    default DEFAULT_START_NS: a zero stamp is malformed for the nodes).
+    profile_spec: german-low|german-high|fra-N|paper|file:CSV (track.line_profile); speed_mps:
+    a constant, samples spread evenly over the duration or a ``speed_profile.SpeedProfile``
+    (m/s); duration_s (s); rate_hz: IMU output rate (None: the preset's); sensor: preset name
+    or ImuSpec; seed drives profile and sensor (independent streams); defects: spec string or
+    list (track.parse_defects); vehicle: VehicleParams, theta (5,), a vehicle YAML path or None
+    (Table 1); start_ns: stamp of the first sample (ns; default DEFAULT_START_NS: a zero stamp
+    is malformed for the nodes); start_m: chainage at the start (m; default the profile's
+    origin: 0, or a CSV's first chainage); line_seed: the track's seed (default: drawn from
+    seed), so that runs with other seeds pass over the same line; odom_scale: odometry speed
+    / true speed (1 + wheel-diameter error).
     """
-    spec = imu_spec(sensor) if isinstance(sensor, str) else sensor
-    if rate_hz is not None:
-        spec = replace(spec, output_rate_hz=rate_hz)
-    rate = spec.output_rate_hz
-    n_out = round(duration_s * rate) if np.isfinite(duration_s) else 0
-    if n_out < 2:
-        raise ConfigError(f'duration: {duration_s!r} s gives fewer than two samples at '
-                          f'{rate:g} Hz')
-    defect_list = parse_defects(defects) if not isinstance(defects, list) else defects
-    shortest = min([wavelength_range[0]] + [d.shortest_wavelength for d in defect_list])
-    fs_sim, q = simulation_rate(rate, float(check_speed(speed_mps).max()), shortest)
-
-    t = np.arange(n_out * q) / fs_sim
-    v = speed_at(t, speed_mps, duration_s)
-    travel = cumulative_trapezoid(v, t, initial=0.0)
-    # profile grid no coarser than the distance per simulation step: the forward model (first-
-    # order hold) then sees the grid profile itself, with no extra interpolation kinks
-    dx = float(np.max(v)) / fs_sim
-    profile_seed, imu_seed = (int(child.generate_state(1)[0])
-                              for child in np.random.SeedSequence(seed).spawn(2))
-    x, u = make_profile(profile_spec, travel[-1] + dx, dx, profile_seed, wavelength_range)
-    chainage = x[0] + travel
-    u_sim = apply_defects(chainage, np.interp(chainage, x, u), defect_list)
-
-    theta = _vehicle(vehicle)
-    a_s, _ = simulate(u_sim, 1.0 / fs_sim, theta)
-    imu = measure(t, a_s, spec, imu_seed)
-    keep = imu.valid
-    pick = np.arange(n_out)[keep] * q
-    return Run(stamps_ns=imu.stamps_ns[keep] + np.int64(start_ns), accel=imu.accel[keep],
-               t_true_s=imu.t_true_s[keep], speed_mps=v[pick], chainage_m=chainage[pick],
-               truth_u_m=u_sim[pick], rate_hz=rate, sim_rate_hz=fs_sim,
-               accel_covariance=accel_covariance(spec), n_dropped=int(np.sum(~keep)),
-               sensor=spec, vehicle=theta, profile=profile_spec,
-               defects=defects if isinstance(defects, str) else None, seed=seed)
+    stream = RunStream(profile_spec, speed_mps, duration_s, rate_hz, sensor, seed, defects,
+                       vehicle, wavelength_range=wavelength_range, start_ns=start_ns,
+                       start_m=start_m, line_seed=line_seed, odom_scale=odom_scale,
+                       chunk_s=math.inf)
+    return Run.concat(list(stream))

@@ -87,16 +87,23 @@ def synthesize(psd: Psd, length_m: float, dx_m: float, seed: int | None = 0,
         raise ConfigError(f'wavelength_range: need 2*dx <= lmin < lmax < inf, got {lmin}, {lmax} '
                           f'with dx {dx_m}')
     n_fft = synthesis_size(length_m, dx_m, lmax)
+    u = spectral_period(psd, n_fft, dx_m, np.random.default_rng(seed), (lmin, lmax))
+    n = int(np.ceil(length_m / dx_m - 1e-9)) + 1
+    return np.arange(n) * dx_m, u[:n]
+
+
+def spectral_period(psd: Psd, n_fft: int, dx_m: float, rng: np.random.Generator,
+                    wavelength_range: tuple[float, float]) -> np.ndarray:
+    """One period (n_fft samples of step dx_m, m) of the spectral representation sum."""
+    lmin, lmax = wavelength_range
     d_omega = 2 * np.pi / (n_fft * dx_m)
     omega = np.arange(n_fft // 2 + 1) * d_omega
     inside = (omega >= 2 * np.pi / lmax) & (omega <= 2 * np.pi / lmin)
     amp = np.zeros_like(omega)
     amp[inside] = np.sqrt(2.0 * psd(omega[inside]) * d_omega)
-    phase = np.random.default_rng(seed).uniform(0.0, 2 * np.pi, omega.size)
+    phase = rng.uniform(0.0, 2 * np.pi, omega.size)
     # irfft returns (1/N) sum_k X_k e^{i k n 2pi/N} over both half-spectra: X_k = N/2 A_k e^{i phi}
-    u = fft.irfft(0.5 * n_fft * amp * np.exp(1j * phase), n=n_fft)
-    n = int(np.ceil(length_m / dx_m - 1e-9)) + 1
-    return np.arange(n) * dx_m, u[:n]
+    return fft.irfft(0.5 * n_fft * amp * np.exp(1j * phase), n=n_fft)
 
 
 # --- isolated defects -------------------------------------------------------------------------
@@ -343,3 +350,100 @@ def make_profile(spec: str, length_m: float, dx_m: float, seed: int | None = 0,
             raise ConfigError(f'{path}: covers {xc[-1] - xc[0]:g} m, the run needs {length_m:g} m')
         return x, np.interp(x, xc, uc)
     return synthesize(spectrum_for(spec), length_m, dx_m, seed, wavelength_range)
+
+
+# --- profiles along a whole line, evaluated at any chainage ----------------------------------
+
+LINE_GRID_PER_LMIN = 32  # line grid step lmin / 32: linear interpolation loses < 0.4 % at lmin
+LINE_TILE_WAVES = 8  # a tile spans at least 8 longest wavelengths
+LINE_TILE_CACHE = 4  # tiles kept: a chunk of a run touches two or three
+_TILE_KEY_OFFSET = 2 ** 40  # spawn keys are non-negative: tiles j > -2^40 (any real chainage)
+
+
+class RandomLine:
+    """A random profile along a whole line: the same u at a chainage whatever the run.
+
+    Tiles j = ..., -1, 0, 1, ... of period 2S (S = tile spacing) hold independent spectral
+    representation sums (``spectral_period``, from the seed and j), each weighted by the sine
+    window sin(pi s / 2S) over its span [jS, jS + 2S]. Two tiles overlap everywhere and
+    cos^2 + sin^2 = 1, so the variance is exactly the spectrum's and the profile never repeats;
+    the window widens every spectral line by about 1 / (2S) cycles/m (S >= 4 lmax: below 1/8 of
+    the lowest frequency). Values between grid points (step lmin / 32) are linear.
+    """
+
+    def __init__(self, psd: Psd, seed: int | None = 0,
+                 wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS) -> None:
+        lmin, lmax = (float(v) for v in wavelength_range)
+        if not (0 < lmin < lmax < np.inf):
+            raise ConfigError(f'wavelength_range: need 0 < lmin < lmax < inf, got {lmin}, {lmax}')
+        self.psd = psd
+        self.wavelength_range = (lmin, lmax)
+        self.dx = lmin / LINE_GRID_PER_LMIN
+        self.n_fft = synthesis_size(LINE_TILE_WAVES * lmax, self.dx, lmax)
+        self.spacing_m = 0.5 * self.n_fft * self.dx
+        self.entropy = np.random.SeedSequence(seed).entropy
+        self._grid = np.arange(self.n_fft + 1) * self.dx
+        self._tiles: dict[int, np.ndarray] = {}
+
+    def tile(self, j: int) -> np.ndarray:
+        """Tile j on its grid (n_fft + 1 samples: the period closed), m."""
+        if j not in self._tiles:
+            if len(self._tiles) >= LINE_TILE_CACHE:
+                self._tiles.pop(next(iter(self._tiles)))
+            seq = np.random.SeedSequence(self.entropy, spawn_key=(j + _TILE_KEY_OFFSET,))
+            u = spectral_period(self.psd, self.n_fft, self.dx, np.random.default_rng(seq),
+                                self.wavelength_range)
+            self._tiles[j] = np.append(u, u[0])
+        return self._tiles[j]
+
+    def __call__(self, x_m: np.ndarray) -> np.ndarray:
+        """Irregularity (m) at chainages x_m (m), any shape."""
+        x = np.asarray(x_m, dtype=float)
+        pos = x / self.spacing_m
+        j = np.floor(pos)
+        theta = 0.5 * np.pi * (pos - j)
+        u = np.empty_like(x)
+        for jj in np.unique(j).astype(np.int64).tolist():  # two or three tiles per chunk
+            mine = j == jj
+            local = x[mine] - jj * self.spacing_m
+            older = np.interp(local + self.spacing_m, self._grid, self.tile(jj - 1))
+            newer = np.interp(local, self._grid, self.tile(jj))
+            u[mine] = np.cos(theta[mine]) * older + np.sin(theta[mine]) * newer
+        return u
+
+
+@dataclass(frozen=True)
+class FileLine:
+    """A profile CSV as a line: linear between its points, an error outside them."""
+
+    path: Path
+    x_m: np.ndarray
+    u_m: np.ndarray
+
+    def __call__(self, x_m: np.ndarray) -> np.ndarray:
+        """Irregularity (m) at chainages x_m (m) inside the file's range."""
+        x = np.asarray(x_m, dtype=float)
+        if x.size and (x.min() < self.x_m[0] - 1e-9 or x.max() > self.x_m[-1] + 1e-9):
+            raise ConfigError(f'{self.path}: covers {self.x_m[0]:g}-{self.x_m[-1]:g} m, the run '
+                              f'needs {x.min():g}-{x.max():g} m')
+        return np.interp(x, self.x_m, self.u_m)
+
+
+LineProfile = Callable[[np.ndarray], np.ndarray]
+
+
+def line_profile(spec: str, seed: int | None = 0,
+                 wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS
+                 ) -> tuple[LineProfile, float]:
+    """(u(x) for any chainage array x in m, natural origin in m) for a profile spec.
+
+    german-low|german-high|fra-N: ``RandomLine`` (origin 0); paper: ``paper_profile`` (origin
+    0); file:PATH.csv: ``FileLine`` (origin: the file's first chainage).
+    """
+    if spec == 'paper':
+        return paper_profile, 0.0
+    if spec.startswith('file:'):
+        path = Path(spec[5:])
+        x, u = load_csv(path)
+        return FileLine(path, x, u), float(x[0])
+    return RandomLine(spectrum_for(spec), seed, wavelength_range), 0.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -16,25 +17,25 @@ from railgsa_ros.bag.messages import (
     imu_values,
     odometry_values,
     qos,
+    typestore,
 )
+from railgsa_ros.bag.reader import TopicSummary
 from railgsa_ros.bag.writer import BagWriter, Batch
+from railgsa_ros.ticks import TickSampler
 
 IMU_TOPIC = '/imu/data'
 ODOM_TOPIC = '/odom'
 TRUTH_TOPIC = '/track/irregularity_truth'
+GNSS_TOPIC = '/gnss/fix'
+NAVSATFIX = 'sensor_msgs/msg/NavSatFix'
+GNSS_FRAME_ID = 'gnss'
 WRITE_CHUNK = 50_000  # IMU samples serialised at a time: bounded memory for long runs
 
 
 def sample_indices(stamps_ns: np.ndarray, rate_hz: float) -> np.ndarray:
     """Indices of the first sample at or after each tick of a ``rate_hz`` clock that starts at
     the first stamp: how a slower sensor (odometry) samples the same run."""
-    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
-    if stamps_ns.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    period = 1e9 / rate_hz
-    ticks = stamps_ns[0] + np.round(
-        np.arange(int((stamps_ns[-1] - stamps_ns[0]) // period) + 1) * period).astype(np.int64)
-    return np.unique(np.searchsorted(stamps_ns, ticks, side='left'))
+    return TickSampler(rate_hz).take(stamps_ns)
 
 
 class RunEncoder:
@@ -43,12 +44,16 @@ class RunEncoder:
     ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance
     diagonal; 0 = unknown; None = ``run.accel_covariance``). Imu frame: ``frame_id``, else
     ``run.frame_id``, else imu_link. Odometry samples the run at ``odom_rate_hz`` with
-    pose.position.x = chainage (m) and twist.twist.linear.x = speed (m/s). Truth: point.x =
-    chainage (m), point.z = irregularity (m) at every IMU stamp, frame ``track``.
+    pose.position.x = chainage at the start + odometer distance (m) and twist.twist.linear.x =
+    odometry speed (m/s): both the truth times ``run.odom_scale`` (a wheel-diameter error).
+    Truth: point.x = chainage (m), point.z = irregularity (m) at every IMU stamp, frame
+    ``track``. ``odom``: the TickSampler of a stream whose earlier chunks were encoded before
+    (with ``origin_m``, the stream's first chainage); None for a whole run.
     """
 
     def __init__(self, run: Any, accel_variance: float | None = None,
-                 odom_rate_hz: float = 50.0, frame_id: str | None = None) -> None:
+                 odom_rate_hz: float = 50.0, frame_id: str | None = None,
+                 odom: TickSampler | None = None, origin_m: float | None = None) -> None:
         self.run = run
         self.frame_id = frame_id or getattr(run, 'frame_id', 'imu_link')
         if accel_variance is None:
@@ -56,8 +61,11 @@ class RunEncoder:
         self.accel_variance = float(accel_variance)
         self.odom_rate_hz = float(odom_rate_hz)
         self.stamps_ns = np.asarray(run.stamps_ns, dtype=np.int64)
-        self.odom_index = sample_indices(self.stamps_ns, odom_rate_hz)
-        self.imu_rate_hz = _mean_rate(self.stamps_ns)
+        self.odom_index = (odom or TickSampler(odom_rate_hz)).take(self.stamps_ns)
+        self.imu_rate_hz = float(getattr(run, 'rate_hz', 0.0)) or _mean_rate(self.stamps_ns)
+        chainage = np.asarray(run.chainage_m, dtype=float)
+        self.origin_m = float(chainage[0]) if origin_m is None and chainage.size else origin_m
+        self.odom_scale = float(getattr(run, 'odom_scale', 1.0))
 
     def __len__(self) -> int:
         return self.stamps_ns.size
@@ -75,7 +83,10 @@ class RunEncoder:
         truth = np.zeros((stamps.size, 3))
         truth[:, 0] = chainage[start:stop]
         truth[:, 2] = np.asarray(run.truth_u_m, dtype=float)[start:stop]
-        odom_values = odometry_values(chainage[odom], np.asarray(run.speed_mps)[odom])
+        odometer = chainage[odom]
+        if self.odom_scale != 1.0 and odometer.size:
+            odometer = self.origin_m + self.odom_scale * (odometer - self.origin_m)
+        odom_values = odometry_values(odometer, self.odom_scale * np.asarray(run.speed_mps)[odom])
         return {
             'imu': (stamps, cdr.encode(IMU, stamps, [self.frame_id],
                                        imu_values(run.accel[start:stop], self.accel_variance))),
@@ -95,6 +106,30 @@ class RunEncoder:
         }
 
 
+def navsat_messages(fixes: Any, covariance: np.ndarray, offset_ns: int = 0) -> Batch:
+    """NavSatFix CDR messages of GNSS fixes (``geo.GnssFixes``): STATUS_FIX by GPS, the given
+    ENU position covariance (m^2, row-major), COVARIANCE_TYPE_DIAGONAL_KNOWN, frame ``gnss``.
+
+    rosbags' serializer, not the vectorised codec: NavSatFix mixes int8/uint16/uint8 fields
+    with the doubles, and at 1-10 Hz it costs about 20 us a fix (under 1 s per hour).
+    """
+    store = typestore()
+    types = store.types
+    fix, status = types[NAVSATFIX], types['sensor_msgs/msg/NavSatStatus']
+    header, time = types['std_msgs/msg/Header'], types['builtin_interfaces/msg/Time']
+    stamps = np.asarray(fixes.stamps_ns, dtype=np.int64) + offset_ns
+    cov = np.asarray(covariance, dtype=np.float64)
+    raws = [bytes(store.serialize_cdr(fix(
+        header=header(stamp=time(sec=int(t // 10**9), nanosec=int(t % 10**9)),
+                      frame_id=GNSS_FRAME_ID),
+        status=status(status=status.STATUS_FIX, service=status.SERVICE_GPS),
+        latitude=float(la), longitude=float(lo), altitude=float(al), position_covariance=cov,
+        position_covariance_type=fix.COVARIANCE_TYPE_DIAGONAL_KNOWN), NAVSATFIX))
+        for t, la, lo, al in zip(stamps.tolist(), fixes.lat_deg.tolist(), fixes.lon_deg.tolist(),
+                                 fixes.alt_m.tolist(), strict=True)]
+    return stamps, raws
+
+
 def _mean_rate(stamps_ns: np.ndarray) -> float:
     """Mean sample rate (Hz) of a stamp sequence (1 Hz if it has fewer than two samples)."""
     if stamps_ns.size < 2 or stamps_ns[-1] <= stamps_ns[0]:
@@ -109,12 +144,47 @@ def write_run(path: str | Path, run: Any, storage: str = 'mcap', compression: st
     """Write a run as a rosbag2 bag with ``/imu/data``, ``/odom`` and
     ``/track/irregularity_truth``; header stamp = log time = run stamp + ``offset_ns``.
     Returns the bag path."""
-    encoder = RunEncoder(run, accel_variance, odom_rate_hz)
+    return write_run_chunks(path, [run], storage, compression, accel_variance, odom_rate_hz,
+                            offset_ns, overwrite)[0]
+
+
+def write_run_chunks(path: str | Path, chunks: Iterable[Any], storage: str = 'mcap',
+                     compression: str | None = None, accel_variance: float | None = None,
+                     odom_rate_hz: float = 50.0, offset_ns: int = 0,
+                     overwrite: bool = False, gnss: Any = None
+                     ) -> tuple[Path, list[TopicSummary]]:
+    """``write_run`` for a run that arrives in consecutive chunks (``scenario.RunStream``):
+    each chunk is encoded and written before the next is made, so memory stays bounded.
+    ``gnss``: a ``geo.GnssSim`` whose fixes go to ``/gnss/fix`` (NavSatFix, RELIABLE).
+    Returns (bag path, per-topic counts and log-time spans as written)."""
+    odom = TickSampler(odom_rate_hz)
+    origin = None
+    written: dict[str, list[int]] = {}  # topic -> [count, first, last log time]
     with BagWriter(path, storage, compression, overwrite) as bag:
-        topics = encoder.topics()
-        for topic, msgtype, offered in topics.values():
-            bag.add_topic(topic, msgtype, offered)
-        for start in range(0, len(encoder), WRITE_CHUNK):
-            batches = encoder.encode(start, start + WRITE_CHUNK, offset_ns)
-            bag.write_batches({topics[k][0]: batch for k, batch in batches.items()})
-    return Path(path)
+        topics = None
+        for chunk in chunks:
+            encoder = RunEncoder(chunk, accel_variance, odom_rate_hz, odom=odom, origin_m=origin)
+            origin = encoder.origin_m
+            if topics is None:
+                topics = encoder.topics()
+                if gnss is not None:
+                    topics['gnss'] = (GNSS_TOPIC, NAVSATFIX,
+                                      qos(True, history_depth(gnss.spec.rate_hz)))
+                for topic, msgtype, offered in topics.values():
+                    bag.add_topic(topic, msgtype, offered)
+            for start in range(0, len(encoder), WRITE_CHUNK):
+                batches = encoder.encode(start, start + WRITE_CHUNK, offset_ns)
+                if gnss is not None:
+                    stop = start + WRITE_CHUNK
+                    batches['gnss'] = navsat_messages(
+                        gnss.take(chunk.stamps_ns[start:stop], chunk.chainage_m[start:stop]),
+                        gnss.covariance, offset_ns)
+                bag.write_batches({topics[k][0]: batch for k, batch in batches.items()})
+                for key, (stamps, _) in batches.items():
+                    if len(stamps):
+                        count = written.setdefault(key, [0, int(stamps[0]), 0])
+                        count[0] += len(stamps)
+                        count[2] = int(stamps[-1])
+    summaries = [TopicSummary(topics[k][0], topics[k][1], *written.get(k, (0, 0, 0)))
+                 for k in (topics or {})]
+    return Path(path), sorted(summaries, key=lambda t: t.topic)

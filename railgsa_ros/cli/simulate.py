@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -48,8 +50,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--start-time', type=float, default=DEFAULT_START_S, metavar='S',
                    help=f'stamp of the first sample in s since the epoch '
                         f'(default {DEFAULT_START_S:.0f})')
+    add_location_arguments(p)
     p.add_argument('--overwrite', action='store_true', help='replace an existing PATH')
     p.set_defaults(func=run)
+
+
+def add_location_arguments(p: argparse.ArgumentParser) -> None:
+    """Where the run is and how odometry and GNSS see it (shared with simulate-passes)."""
+    p.add_argument('--start-km', type=float, default=None, metavar='KM',
+                   help='chainage of the start in km (default: the profile\'s origin, 0 or '
+                        'the CSV\'s first chainage)')
+    p.add_argument('--line-seed', type=int, default=None, metavar='N',
+                   help='seed of the random track alone (default: drawn from --seed); runs '
+                        'with the same line seed pass over the same track')
+    p.add_argument('--odom-scale-error', type=float, default=0.0, metavar='E',
+                   help='wheel-diameter error: odometry speed and distance x (1 + E), e.g. '
+                        '0.004 (default 0)')
+    p.add_argument('--gnss', action='store_true',
+                   help='also write GNSS fixes (sensor_msgs/NavSatFix) on /gnss/fix along '
+                        'the default simulated line (docs/simulation.md)')
+    p.add_argument('--gnss-rate', type=float, default=5.0, metavar='HZ',
+                   help='GNSS fix rate in Hz (default 5)')
+    p.add_argument('--gnss-noise', type=float, default=2.0, metavar='M',
+                   help='GNSS horizontal noise std in m; vertical twice that (default 2)')
 
 
 def check_positive(**values: float | None) -> None:
@@ -64,59 +87,184 @@ def check_positive(**values: float | None) -> None:
                               f'got {value:g}')
 
 
-def simulate_bag(out: str | Path, profile: str = 'german-low', speed: float | None = None,
-                 duration: float | None = None, rate: float | None = None,
-                 sensor: str = 'adxl355',
-                 seed: int = 0, defects: str | None = None, vehicle: str | None = None,
-                 storage: str = 'mcap', compression: str | None = None,
-                 odom_rate: float = 50.0, start_time: float = DEFAULT_START_S,
-                 overwrite: bool = False, speed_profile: str | None = None
-                 ) -> tuple[Path, Any]:
-    """Simulate and write the bag; returns (bag path, Run). Units: m/s, s, Hz.
+@dataclass
+class SimOptions:
+    """One simulated run as the command line describes it (option names without dashes)."""
 
-    ``speed`` (default 20 m/s) and ``speed_profile`` (a spec or preset) exclude each other; the
-    duration defaults to 20 s or to the profile's duration (its last speed is held beyond).
-    """
-    from railgsa_ros.bag import write_run
+    profile: str = 'german-low'
+    speed: float | None = None
+    duration: float | None = None
+    rate: float | None = None
+    sensor: str = 'adxl355'
+    seed: int = 0
+    defects: str | None = None
+    vehicle: Any = None  # a vehicle YAML path, VehicleParams or theta (5,)
+    storage: str = 'mcap'
+    compression: str | None = None
+    odom_rate: float = 50.0
+    start_time: float = DEFAULT_START_S
+    speed_profile: str | None = None
+    start_km: float | None = None
+    line_seed: int | None = None
+    odom_scale_error: float = 0.0
+    gnss: bool = False
+    gnss_rate: float = 5.0
+    gnss_noise: float = 2.0
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> SimOptions:
+        """The options of a parsed command line."""
+        return cls(**{f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)})
+
+    def velocity(self) -> tuple[Any, float]:
+        """(speed: m/s or SpeedProfile, duration s), validated."""
+        from railgsa_ros.errors import ConfigError
+        from railgsa_ros.speed_profile import parse_speed_profile
+
+        check_positive(speed=self.speed, duration=self.duration, rate=self.rate,
+                       odom_rate=self.odom_rate)
+        if self.speed is not None and self.speed_profile is not None:
+            raise ConfigError('--speed and --speed-profile exclude each other: give one')
+        if self.speed_profile is not None:
+            profile = parse_speed_profile(self.speed_profile)
+            return profile, profile.duration_s if self.duration is None else self.duration
+        return (20.0 if self.speed is None else self.speed), \
+            (20.0 if self.duration is None else self.duration)
+
+    def stream(self) -> Any:
+        """The run as a ``scenario.RunStream``."""
+        import math
+
+        from railgsa_ros.errors import ConfigError
+        from railgsa_ros.scenario import RunStream
+
+        speed, duration = self.velocity()
+        if not 0 <= self.start_time < 2**31:
+            raise ConfigError(f'--start-time: must be in [0, 2^31) s, got {self.start_time:g}')
+        if not (math.isfinite(self.odom_scale_error) and abs(self.odom_scale_error) < 0.1):
+            raise ConfigError(f'--odom-scale-error: expected a fraction within +-0.1, got '
+                              f'{self.odom_scale_error:g}')
+        if self.start_km is not None and not math.isfinite(self.start_km):
+            raise ConfigError(f'--start-km: must be a finite number, got {self.start_km:g}')
+        return RunStream(self.profile, speed, duration, self.rate, self.sensor, self.seed,
+                         self.defects, self.vehicle, start_ns=round(self.start_time * 1e9),
+                         start_m=None if self.start_km is None else 1e3 * self.start_km,
+                         line_seed=self.line_seed, odom_scale=1.0 + self.odom_scale_error)
+
+    def gnss_sim(self, stream: Any) -> Any:
+        """The GNSS receiver along the default line covering the run (None without --gnss)."""
+        if not self.gnss:
+            return None
+        from railgsa_ros.errors import ConfigError
+        from railgsa_ros.geo import GnssSim, GnssSpec, default_line
+
+        if stream.start_m < 0:
+            raise ConfigError('--gnss: the simulated line starts at chainage 0; the run starts '
+                              f'at {stream.start_m:g} m')
+        check_positive(gnss_rate=self.gnss_rate)
+        reach = stream.start_m + float(stream.max_speed_mps) * stream.duration_s
+        spec = GnssSpec(self.gnss_rate, self.gnss_noise, 2 * self.gnss_noise)
+        return GnssSim(default_line(reach), spec, seed=[self.seed, 0x6E55])
+
+
+def stream_bag(out: str | Path, options: SimOptions, overwrite: bool = False,
+               on_chunk: Callable[[Any], None] | None = None) -> tuple[Path, list[Any], Any]:
+    """Simulate and write the bag chunk by chunk (bounded memory); returns (bag path, topic
+    summaries as written, ``RunSummary`` of the data). ``on_chunk`` sees every Run chunk."""
+    from railgsa_ros.bag.run import write_run_chunks
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.fileio import refuse_overlap
-    from railgsa_ros.scenario import run_scenario
-    from railgsa_ros.speed_profile import parse_speed_profile
 
-    check_positive(speed=speed, duration=duration, rate=rate, odom_rate=odom_rate)
-    if speed is not None and speed_profile is not None:
-        raise ConfigError('--speed and --speed-profile exclude each other: give one')
-    velocity = parse_speed_profile(speed_profile) if speed_profile is not None else \
-        (20.0 if speed is None else speed)
-    if duration is None:
-        duration = velocity.duration_s if speed_profile is not None else 20.0
-    if not 0 <= start_time < 2**31:
-        raise ConfigError(f'--start-time: must be in [0, 2^31) s, got {start_time:g}')
+    stream = options.stream()
+    gnss = options.gnss_sim(stream)
+    compression = options.compression
     if compression is None:
-        compression = 'zstd' if storage == 'mcap' else 'none'
-    refuse_overlap(out, (profile[5:] if profile.startswith('file:') else None, vehicle))
+        compression = 'zstd' if options.storage == 'mcap' else 'none'
+    vehicle_file = options.vehicle if isinstance(options.vehicle, (str, Path)) else None
+    refuse_overlap(out, (options.profile[5:] if options.profile.startswith('file:') else None,
+                         vehicle_file))
     if Path(out).exists() and not overwrite:
         raise ConfigError(f'{out}: already exists (choose another output path or --overwrite)')
-    result = run_scenario(profile, velocity, duration, rate, sensor, seed, defects=defects,
-                          vehicle=vehicle, start_ns=round(start_time * 1e9))
-    path = write_run(out, result, storage, None if compression == 'none' else compression,
-                     odom_rate_hz=odom_rate, overwrite=overwrite)
-    return path, result
+    summary = RunSummary()
+
+    def chunks() -> Any:
+        for chunk in stream:
+            summary.add(chunk)
+            if on_chunk is not None:
+                on_chunk(chunk)
+            yield chunk
+
+    path, topics = write_run_chunks(out, chunks(), options.storage,
+                                    None if compression == 'none' else compression,
+                                    odom_rate_hz=options.odom_rate, overwrite=overwrite,
+                                    gnss=gnss)
+    return path, topics, summary
 
 
-def format_summary(path: str | Path) -> str:
-    """A one-screen summary of a bag read back from disk: topics, counts, rates, truth range."""
-    import numpy as np
+def simulate_bag(out: str | Path, profile: str = 'german-low', overwrite: bool = False,
+                 **options: Any) -> tuple[Path, Any]:
+    """Simulate and write the bag; returns (bag path, the whole Run: for short runs).
 
-    from railgsa_ros.bag import IMU_TOPIC, TRUTH_TOPIC, read_imu, read_stamped, summarize
-    from railgsa_ros.bag.messages import POINT_STAMPED
+    ``options``: the fields of SimOptions (m/s, s, Hz); ``speed`` (default 20 m/s) and
+    ``speed_profile`` exclude each other; the duration defaults to 20 s or to the profile's.
+    """
+    from railgsa_ros.scenario import Run
 
+    chunks: list[Any] = []
+    path, _, _ = stream_bag(out, SimOptions(profile=profile, **options), overwrite,
+                            chunks.append)
+    return path, Run.concat(chunks)
+
+
+class RunSummary:
+    """Running statistics of a simulated run, chunk by chunk: accel z, speed, truth."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.frames: set[str] = set()
+        self.acc_sum = self.acc_sq = self.u_sq = self.u_peak = 0.0
+        self.speed = [float('inf'), -float('inf')]
+        self.chainage = [float('inf'), -float('inf')]
+
+    def add(self, chunk: Any) -> None:
+        """Fold one Run chunk in."""
+        import numpy as np
+
+        if chunk.stamps_ns.size == 0:
+            return
+        z = chunk.accel[:, 2]
+        self.n += z.size
+        self.frames.add(chunk.frame_id)
+        self.acc_sum += float(z.sum())
+        self.acc_sq += float(np.sum(z ** 2))
+        self.u_sq += float(np.sum(chunk.truth_u_m ** 2))
+        self.u_peak = max(self.u_peak, float(np.abs(chunk.truth_u_m).max()))
+        odom = chunk.odom_scale * chunk.speed_mps
+        self.speed = [min(self.speed[0], odom.min()), max(self.speed[1], odom.max())]
+        self.chainage = [min(self.chainage[0], chunk.chainage_m.min()),
+                         max(self.chainage[1], chunk.chainage_m.max())]
+
+    def lines(self) -> list[str]:
+        """The data lines of the summary (as ``format_summary`` prints them)."""
+        if self.n == 0:
+            return []
+        mean = self.acc_sum / self.n
+        std = max(0.0, self.acc_sq / self.n - mean ** 2) ** 0.5
+        return [f'  accel z mean {mean:.4f} m/s^2, std {std:.4f} m/s^2, frame '
+                f'{", ".join(sorted(self.frames))}',
+                f'  speed {self.speed[0]:.2f}-{self.speed[1]:.2f} m/s (odometry)',
+                f'  truth chainage {self.chainage[0]:.1f}-{self.chainage[1]:.1f} m, '
+                f'irregularity rms {1e3 * (self.u_sq / self.n) ** 0.5:.3f} mm, '
+                f'peak {1e3 * self.u_peak:.3f} mm']
+
+
+def topic_lines(path: str | Path, topics: list[Any]) -> list[str]:
+    """Bag size, one line per topic (count, rate) and the time span."""
     path = Path(path)
     size = sum(f.stat().st_size for f in path.rglob('*') if f.is_file()) if path.is_dir() \
         else path.stat().st_size
     lines = [f'bag {path} ({size / 1e6:.2f} MB)',
              f'  {"topic":<28} {"type":<32} {"count":>7} {"rate [Hz]":>10}']
-    topics = summarize(path)
     for t in topics:
         span = (t.end_ns - t.start_ns) / 1e9
         rate = (t.count - 1) / span if t.count > 1 and span > 0 else float('nan')
@@ -125,6 +273,18 @@ def format_summary(path: str | Path) -> str:
         start = min(t.start_ns for t in topics)
         end = max(t.end_ns for t in topics)
         lines.append(f'  duration {(end - start) / 1e9:.3f} s from stamp {start / 1e9:.3f} s')
+    return lines
+
+
+def format_summary(path: str | Path) -> str:
+    """A one-screen summary of a bag read back from disk (reads it whole: short bags)."""
+    import numpy as np
+
+    from railgsa_ros.bag import IMU_TOPIC, TRUTH_TOPIC, read_imu, read_stamped, summarize
+    from railgsa_ros.bag.messages import POINT_STAMPED
+
+    topics = summarize(path)
+    lines = topic_lines(path, topics)
     if any(t.topic == IMU_TOPIC for t in topics):
         stream = read_imu(path)
         acc = stream.accel[np.isfinite(stream.accel[:, 2])]
@@ -142,10 +302,7 @@ def format_summary(path: str | Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Simulate, write the bag, print its summary."""
-    path, _ = simulate_bag(args.out, args.profile, args.speed, args.duration, args.rate,
-                           args.sensor, args.seed, args.defects, args.vehicle, args.storage,
-                           args.compression, args.odom_rate, args.start_time, args.overwrite,
-                           args.speed_profile)
-    print(format_summary(path))
+    """Simulate and write the bag in chunks, print its summary (from the stream)."""
+    path, topics, summary = stream_bag(args.out, SimOptions.from_args(args), args.overwrite)
+    print('\n'.join(topic_lines(path, topics) + summary.lines()))
     return 0
