@@ -56,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def add_location_arguments(p: argparse.ArgumentParser) -> None:
-    """Where the run is and how odometry and GNSS see it (shared with simulate-passes)."""
+    """Where the run is and how odometry and GNSS see it."""
     p.add_argument('--start-km', type=float, default=None, metavar='KM',
                    help='chainage of the start in km (default: the profile\'s origin, 0 or '
                         'the CSV\'s first chainage)')
@@ -69,6 +69,11 @@ def add_location_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument('--gnss', action='store_true',
                    help='also write GNSS fixes (sensor_msgs/NavSatFix) on /gnss/fix along '
                         'the default simulated line (docs/simulation.md)')
+    add_gnss_arguments(p)
+
+
+def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
+    """The simulated GNSS receiver's rate and noise (shared with simulate-passes)."""
     p.add_argument('--gnss-rate', type=float, default=5.0, metavar='HZ',
                    help='GNSS fix rate in Hz (default 5)')
     p.add_argument('--gnss-noise', type=float, default=2.0, metavar='M',
