@@ -31,12 +31,12 @@ def railgsa(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_help_lists_every_subcommand_without_heavy_imports() -> None:
-    modules = sorted(m.name for m in pkgutil.iter_modules(cli.__path__)
+    modules = sorted(m.name.replace('_', '-') for m in pkgutil.iter_modules(cli.__path__)
                      if m.name != 'main' and not m.name.startswith('_'))
     assert {'bode', 'demo', 'simulate'} <= set(modules)
     result = railgsa('--help')
     assert result.returncode == 0
-    listed = set(re.findall(r'^    (\w+)', result.stdout, re.MULTILINE))
+    listed = set(re.findall(r'^    ([\w-]+)', result.stdout, re.MULTILINE))
     assert set(modules) <= listed
     probe = ('import sys; from railgsa_ros.cli.main import build_parser; build_parser(); '
              f'print(sorted(m for m in {HEAVY!r} if m in sys.modules))')
