@@ -151,3 +151,21 @@ def test_line_profile_band_variance_matches_the_spectrum(spec):
     fine = line(np.arange(0.0, 6000.0, 0.01))
     steps = np.abs(np.diff(fine))
     assert steps.max() < 10 * np.median(steps) + 1e-6
+
+
+def test_profile_file_shorter_than_the_run_is_one_line_and_no_bag(tmp_path: Path, capsys):
+    from railgsa_ros.cli.main import main
+    from railgsa_ros.track import save_csv
+
+    x = np.arange(0.0, 100.0, 0.1)
+    save_csv(tmp_path / 'short.csv', x + 50.0, 1e-3 * np.sin(x))
+    out = tmp_path / 'bag'
+    assert main(['simulate', '--out', str(out), '--profile', f'file:{tmp_path}/short.csv',
+                 '--speed', '20', '--duration', '8', '--rate', '200']) == 2
+    err = capsys.readouterr().err
+    assert 'short.csv: covers 50-149.9 m, the run needs' in err and err.count('\n') == 1
+    assert not out.exists()
+    assert main(['simulate', '--out', str(out), '--profile', f'file:{tmp_path}/short.csv',
+                 '--speed', '20', '--duration', '4', '--rate', '200', '--gnss']) == 0
+    assert main(['simulate', '--out', str(tmp_path / 'neg'), '--start-km', '-1', '--gnss']) == 2
+    assert '--gnss: the simulated line starts at chainage 0' in capsys.readouterr().err
