@@ -100,6 +100,13 @@ class StateSpaceBank:
         """Return to the zero state."""
         self.state[:] = 0.0
 
+    def settle(self, u0: float) -> None:
+        """Set the state to the equilibrium under a constant input u0: x = (I - Ad)^-1 Bd u0
+        (every system must be stable)."""
+        n = self.system.ad.shape[-1]
+        rhs = (self.system.bd * u0)[..., None]  # (P, n, 1)
+        self.state = np.linalg.solve(np.eye(n) - self.system.ad, rhs)[..., 0]
+
     def process(self, u: np.ndarray) -> np.ndarray:
         """Advance the bank over a chunk of input; returns outputs of shape (P, q, T)."""
         u = np.asarray(u, dtype=float)

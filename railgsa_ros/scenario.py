@@ -5,6 +5,8 @@ forward model runs at an internal rate that is a multiple q >= 2 of the IMU outp
 MIN_SIM_RATE_HZ (resolves the 57 Hz wheel-hop mode) and at least POINTS_PER_WAVELENGTH samples over
 the shortest wavelength or defect at the top speed. Output sample k is the simulation sample k q,
 so accel, speed, chainage and truth all refer to the same true sample time t = k / rate_hz.
+The vehicle starts at rest in equilibrium on the track under its first position (no start-up
+transient from a step onto the irregularity there).
 
 ``RunStream`` produces the run in chunks of bounded size (profile, vehicle and sensor keep their
 state across chunks: the chunks of a run are equal to its one-shot arrays); ``run_scenario``
@@ -185,6 +187,8 @@ class RunStream:
             v_last = v[-1]
             chainage = self.start_m + travel
             u = apply_defects(chainage, self.line(chainage), self.defects)
+            if lo == 0:  # the vehicle starts at rest on the track where it stands: no step
+                self.bank.settle(float(u[0]))
             imu = self.mems.process(self.bank.process(u)[0, 0], final=hi == n_sim)
             out = index % self.q == 0
             pending = [np.concatenate([p, x[out]]) for p, x in
