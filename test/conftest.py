@@ -132,3 +132,17 @@ def start_node(ros_domain: int, tmp_path: Path) -> Iterator[Callable[..., NodePr
         for proc in procs:
             if proc.running():
                 proc.stop(signal.SIGKILL, timeout=5.0)
+
+
+@pytest.fixture(scope='session')
+def short_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 3 s simulated bag (German low track, 25 m/s, ADXL355 at 500 Hz, odometry) for command
+    tests that read it and never write into it."""
+    from railgsa_ros.bag import write_run
+    from railgsa_ros.scenario import run_scenario
+
+    run = run_scenario('german-low', 25.0, 3.0, 500.0, 'adxl355', seed=4,
+                       start_ns=1_700_000_000 * 10**9)
+    path = tmp_path_factory.mktemp('bags') / 'run'
+    write_run(path, run)
+    return path

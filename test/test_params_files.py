@@ -6,11 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.config import ros_parameters
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.scenario import run_scenario
 
 KNOWN = ('method', 'gain', 'band')
 
@@ -21,13 +19,9 @@ def params(text: str, tmp_path: Path) -> Path:
     return path
 
 
-@pytest.fixture(scope='module')
-def bag(tmp_path_factory):
-    run = run_scenario('german-low', 25.0, 3.0, 500.0, 'adxl355', seed=4,
-                       start_ns=1_700_000_000 * 10**9)
-    path = tmp_path_factory.mktemp('bags') / 'run'
-    write_run(path, run)
-    return path
+@pytest.fixture
+def bag(short_bag: Path) -> Path:
+    return short_bag
 
 
 # ---------------------------------------------------------------------------- the loader

@@ -11,11 +11,9 @@ import sys
 import numpy as np
 import pytest
 
-from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.fileio import refuse_overlap
-from railgsa_ros.scenario import run_scenario
 from railgsa_ros.vehicle import PARAM_BOUNDS, PARAM_NAMES, PARAM_UNITS, VehicleParams
 
 FAST_GSA = ['gsa', '--rule', 'pem3', '--order', '1']
@@ -27,13 +25,9 @@ def one_error_line(capsys) -> str:
     return err
 
 
-@pytest.fixture(scope='module')
-def bag(tmp_path_factory):
-    run = run_scenario('german-low', 25.0, 3.0, 500.0, 'adxl355', seed=5,
-                       start_ns=1_700_000_000 * 10**9)
-    path = tmp_path_factory.mktemp('bags') / 'run'
-    write_run(path, run)
-    return path
+@pytest.fixture
+def bag(short_bag: Path) -> Path:
+    return short_bag
 
 
 def vehicle_file(tmp_path: Path, **values: float) -> Path:
