@@ -2,8 +2,8 @@
 
 A bag of ``--seconds`` of 1 kHz Imu is written by our recorder (``BagRecorder``: chunk CRCs
 stored, a chunk per second), uncompressed and zstd. The fast path reads it with the CRC check
-(as shipped) and with it disabled (the baseline, in the same run, after one warm-up read); best of ``--repeat``.
-The machine is shared: the load average is printed next to the numbers.
+(as shipped) and with it disabled (the baseline, in the same run, after one warm-up read); best
+of ``--repeat``. The machine is shared: the load average is printed next to the numbers.
 
 Usage: python benchmarks/bench_crc.py [--seconds 600] [--repeat 5]
 """
