@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-import resource
 import shutil
 import tempfile
 import time
@@ -63,8 +62,11 @@ def measure(bags: list[str], workers: int, folder: Path) -> dict[str, float]:
 
 
 def peak_rss_kb() -> int:
-    """Peak resident memory of this process (kB; run on each worker)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    """Peak resident memory of this process (kB; run on each worker): VmHWM, not ru_maxrss,
+    which on Linux keeps the parent's resident size at the fork that started the worker."""
+    with open('/proc/self/status', encoding='ascii') as status:
+        line = next(row for row in status if row.startswith('VmHWM:'))
+    return int(line.split()[1])
 
 
 def main() -> None:
