@@ -74,6 +74,21 @@ def test_extreme_vehicle_refused_by_every_command(bag, tmp_path, capsys, command
     assert not any(p.name != 'vehicle.yaml' for p in tmp_path.iterdir())
 
 
+@pytest.mark.parametrize(('spec', 'message'), [
+    ('m_s: {dist: normal, mu: 1.0e+300, sigma: 1.0e+299}',
+     'parameters.m_s: median 1e+300 kg is outside the physical range [100, 100000] kg'),
+    ('k_s: {dist: uniform, a: 1.0, b: 2.0}',
+     'parameters.k_s: median 1.5 N/m is outside the physical range [10000, 1e+08] N/m'),
+])
+def test_uncertain_parameters_outside_the_vehicle_bounds_are_refused(tmp_path, capsys, spec,
+                                                                     message) -> None:
+    """An uncertainty file centred on 1e300 kg gave a plausible-looking gsa result."""
+    path = tmp_path / 'u.yaml'
+    path.write_text(f'parameters:\n  {spec}\n')
+    assert main([*FAST_GSA, '--uncertainty', str(path)]) == 2
+    assert one_error_line(capsys) == f'error: {path}: {message}\n'
+
+
 def test_kalman_without_a_steady_state_filter_is_one_line(bag, tmp_path, capsys) -> None:
     """A corner of the bounds (100 kg body on a 1e8 N/m spring, 10 kg wheel, c = 100) has no
     DARE solution: one line that names the method; the spectral method still works."""

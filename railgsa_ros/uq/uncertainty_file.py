@@ -28,7 +28,7 @@ from railgsa_ros.uq.distributions import (
     Normal,
     Uniform,
 )
-from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
+from railgsa_ros.vehicle import PARAM_BOUNDS, PARAM_NAMES, PARAM_UNITS, VehicleParams
 
 FIELDS = {'normal': (Normal, ('mu', 'sigma'), ('lower', 'upper')),
           'uniform': (Uniform, ('a', 'b'), ()),
@@ -82,6 +82,11 @@ def parse_parameter(name: str, spec: Any) -> Distribution:
     if not low >= 0.0:
         raise ConfigError(f'{where}: the distribution allows values below 0, but {name} is a '
                           f'positive physical parameter')
+    median, (lowest, highest), unit = float(dist.from_xi(0.0)), PARAM_BOUNDS[name], \
+        PARAM_UNITS[name]
+    if not lowest <= median <= highest:  # the vehicle's physical bounds, as everywhere
+        raise ConfigError(f'{where}: median {median:g} {unit} is outside the physical range '
+                          f'[{lowest:g}, {highest:g}] {unit}')
     return dist
 
 
