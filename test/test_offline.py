@@ -247,10 +247,12 @@ def test_review_writes_defects_sections_and_a_json_summary(tmp_path: Path, capsy
 
 def _params(tmp_path: Path) -> Path:
     """A params file with the location keys of the nodes (line overridden on the command line),
-    and no uncertainty (a faster review)."""
+    and a cheap uncertainty design (a faster review)."""
     path = tmp_path / 'params.yaml'
     path.write_text('irregularity_node:\n  ros__parameters:\n    line: from-file\n'
-                    '    direction: increasing\n', encoding='utf-8')
+                    '    direction: increasing\nuncertainty_node:\n  ros__parameters:\n'
+                    '    rule: pem3\n    order: 1\n    germ_samples: 256\n    n_mc: 1000\n',
+                    encoding='utf-8')
     return path
 
 

@@ -239,8 +239,8 @@ def plot_health(path: Path, health: InputHealth) -> Path:
     ax_t = fig.add_subplot(grid[0, :])
     trace = health.imu_trace
     per_second = trace.per_second[:max(trace.per_second.size - 1, 1)]  # whole seconds
-    ax_t.step(np.arange(per_second.size), per_second, where='post', color=LINE_COLOUR, lw=0.9,
-              label='IMU samples per second')
+    ax_t.step(trace.per_second_origin_s + np.arange(per_second.size), per_second, where='post',
+              color=LINE_COLOUR, lw=0.9, label='IMU samples per second')
     if trace.gap_log_s:
         ax_t.plot(trace.gap_log_s, np.full(len(trace.gap_log_s), health.imu.rate_hz), 'v',
                   color='#c92a2a', ms=6,

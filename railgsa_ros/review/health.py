@@ -48,9 +48,9 @@ class StampAccumulator:
     """Stamp statistics of a topic that streams in chunks (``stamp_stats`` of all of it at
     once). The nominal period is the median positive step of the first chunk with one (65 s
     at 1 kHz: the period the pipeline uses too). For the health figure it also counts the
-    messages per second of log time (bounded by the recording's length, whatever the
-    stamps), keeps the log times of the first MAX_GAP_MARKS gaps and a histogram of the jitter
-    in JITTER_BINS bins from -1 to gap_factor - 1 periods."""
+    messages per second of log time (sparse: memory by the seconds the recording has messages
+    in, whatever the stamps), keeps the log times of the first MAX_GAP_MARKS gaps and a
+    histogram of the jitter in JITTER_BINS bins from -1 to gap_factor - 1 periods."""
 
     def __init__(self, gap_factor: float = 3.0) -> None:
         self.gap_factor = float(gap_factor)
@@ -63,7 +63,8 @@ class StampAccumulator:
         self._gaps, self._longest, self._lost, self._backwards = 0, 0.0, 0.0, 0
         self._pending = np.zeros(0)  # steps before the period is known
         self._first_log: int | None = None
-        self.per_second = np.zeros(0, np.int64)
+        self._seconds: dict[int, int] = {}  # second of log time -> messages (sparse)
+        self.per_second_origin_s = 0  # first second of ``per_second``
         self.gap_log_s: list[float] = []
         self.jitter_counts = np.zeros(JITTER_BINS, np.int64)
 
@@ -97,14 +98,26 @@ class StampAccumulator:
     def _per_second(self, logs: np.ndarray) -> None:
         if self._first_log is None:
             self._first_log = int(logs[0])
-        sec = (logs - self._first_log) // 1_000_000_000
-        sec = sec[sec >= 0]
-        if sec.size:
-            counts = np.bincount(sec)
-            if counts.size > self.per_second.size:
-                self.per_second = np.concatenate(
-                    [self.per_second, np.zeros(counts.size - self.per_second.size, np.int64)])
-            self.per_second[:counts.size] += counts
+        seconds, counts = np.unique((logs - self._first_log) // 1_000_000_000,
+                                    return_counts=True)
+        for sec, n in zip(seconds.tolist(), counts.tolist(), strict=True):
+            self._seconds[sec] = self._seconds.get(sec, 0) + n
+
+    @property
+    def per_second(self) -> np.ndarray:
+        """Messages per second of log time over the recording: the longest stretch of seconds
+        without an hour missing (a log time far from the others, a clock set wrong, would
+        otherwise stretch the figure over years)."""
+        if not self._seconds:
+            return np.zeros(0, np.int64)
+        keys = np.array(sorted(self._seconds))
+        cuts = np.flatnonzero(np.diff(keys) > 3600) + 1
+        parts = np.split(keys, cuts)
+        best = max(parts, key=lambda p: sum(self._seconds[k] for k in p.tolist()))
+        self.per_second_origin_s = int(best[0])
+        out = np.zeros(int(best[-1] - best[0]) + 1, np.int64)
+        out[best - best[0]] = [self._seconds[k] for k in best.tolist()]
+        return out
 
     def _steps(self, step: np.ndarray, logs: np.ndarray | None) -> None:
         period = self.period_s
