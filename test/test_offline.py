@@ -22,7 +22,7 @@ from railgsa_ros.location import Reference, from_local, to_local
 from railgsa_ros.offline import HeldSpeed, Source
 from railgsa_ros.review.build import ReviewOptions, build_review
 from railgsa_ros.review.exceedances import find_exceedances
-from railgsa_ros.review.grid import BLOCK, DX_M
+from railgsa_ros.review.grid import DX_M
 from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.sections import section_sd
 from railgsa_ros.review.stream import run_stream
@@ -137,8 +137,9 @@ def test_the_review_keeps_arrays_of_the_run_length_not_of_the_samples(tmp_path: 
     # nothing per sample: the largest array is the grid (or a sensitivity/worst vector)
     assert max(sizes) <= max(cells, review.run.design.points, 256)
     assert samples > 4 * cells if rate_hz == 2000.0 else samples > cells
-    builder_bytes = 84 * BLOCK / 4  # one allocated block of cells at 21 bytes a cell
-    assert review.run.grid.x_m.nbytes <= builder_bytes
+    g = review.run.grid  # 21 bytes a cell
+    assert sum(a.nbytes for a in (g.u_m, g.lower_m, g.upper_m, g.speed_mps, g.valid)) \
+        <= 21 * cells
 
 
 def _gnss_bag(path: Path, run: object, scale_error: float, sigma_m: float, rate_hz: float,

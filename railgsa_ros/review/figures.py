@@ -120,7 +120,8 @@ def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exce
     if grid.has_band:
         _band(ax, x, grid.lower_m * MM, grid.upper_m * MM, _band_label(quantiles))
     _signal(ax, x, grid.u_m * MM, color=LINE_COLOUR, label='reconstruction')
-    _limit_lines(ax, x, limits.at(grid.speed_mps))
+    xe, slowest, _ = envelope(x, grid.speed_mps)
+    _limit_lines(ax, xe, limits.at(slowest))  # the limits fall with speed: the loosest per bin
     for level in LEVELS:
         picked = [e for e in exceedances if e.level == level]
         for sure in (True, False):  # filled: certain or likely, hollow: possible

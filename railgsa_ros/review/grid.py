@@ -24,11 +24,12 @@ BLOCK = 1 << 16  # cells per storage block (16 km at 0.25 m)
 
 @dataclass(frozen=True)
 class Grid:
-    """The cells of a run: centres x_m (N,), u_m (N,), lower_m and upper_m (N,) (NaN without a
-    band), speed_mps (N,), valid (N,); invalid cells hold NaN."""
+    """The cells of a run from cell ``first`` on: u_m (N,) float64, lower_m and upper_m (N,)
+    float32 (NaN without a band), speed_mps (N,) float32, valid (N,); invalid cells hold NaN.
+    The centres ``x_m`` are computed when asked."""
 
     dx_m: float
-    x_m: np.ndarray
+    first: int
     u_m: np.ndarray
     lower_m: np.ndarray
     upper_m: np.ndarray
@@ -36,7 +37,12 @@ class Grid:
     valid: np.ndarray
 
     def __len__(self) -> int:
-        return int(self.x_m.size)
+        return int(self.u_m.size)
+
+    @property
+    def x_m(self) -> np.ndarray:
+        """Cell centres (N,) m."""
+        return (self.first + np.arange(self.u_m.size) + 0.5) * self.dx_m
 
     @property
     def has_band(self) -> bool:
@@ -45,10 +51,11 @@ class Grid:
 
     def window(self, lo_m: float, hi_m: float) -> Grid:
         """The cells with centres in [lo_m, hi_m]."""
-        i = np.searchsorted(self.x_m, lo_m, side='left')
-        j = np.searchsorted(self.x_m, hi_m, side='right')
-        return Grid(self.dx_m, *(getattr(self, f)[i:j] for f in
-                                 ('x_m', 'u_m', 'lower_m', 'upper_m', 'speed_mps', 'valid')))
+        i = int(np.clip(np.ceil(lo_m / self.dx_m - 0.5) - self.first, 0, len(self)))
+        j = int(np.clip(np.floor(hi_m / self.dx_m - 0.5) - self.first + 1, i, len(self)))
+        return Grid(self.dx_m, self.first + i, *(getattr(self, f)[i:j] for f in
+                                                 ('u_m', 'lower_m', 'upper_m', 'speed_mps',
+                                                  'valid')))
 
 
 class GridBuilder:
@@ -116,16 +123,21 @@ class GridBuilder:
         return sum(a.nbytes for b in self._blocks.values() for a in b)
 
     def grid(self) -> Grid:
-        """The cells from the first to the last one reached (blocks never reached: invalid)."""
+        """The cells from the first to the last valid one; the builder's blocks are handed over
+        one at a time (the builder is empty afterwards: no second copy of the run)."""
         if not self._blocks:
-            empty = np.zeros(0)
-            return Grid(self.dx_m, empty, empty, empty, empty, empty, np.zeros(0, bool))
+            return Grid(self.dx_m, 0, np.zeros(0), *(np.zeros(0, np.float32) for _ in range(3)),
+                        np.zeros(0, bool))
         lo, hi = min(self._blocks), max(self._blocks)
-        blocks = [self._block(i) for i in range(lo, hi + 1)]
-        valid = np.concatenate([b[2] for b in blocks])
+        n = (hi - lo + 1) * BLOCK
+        u, f32, valid = np.full(n, np.nan), np.full((3, n), np.nan, np.float32), np.zeros(n, bool)
+        for i in range(lo, hi + 1):
+            if i in self._blocks:
+                at = slice((i - lo) * BLOCK, (i - lo + 1) * BLOCK)
+                u[at], f32[:, at], valid[at] = self._blocks[i][0], self._blocks[i][1].T, \
+                    self._blocks[i][2]
+                del self._blocks[i]
         kept = np.flatnonzero(valid)
         keep = slice(kept[0], kept[-1] + 1) if kept.size else slice(0, 0)
-        f32 = np.concatenate([b[1] for b in blocks])[keep]
-        x = (lo * BLOCK + np.arange(valid.size)[keep] + 0.5) * self.dx_m
-        return Grid(self.dx_m, x, np.concatenate([b[0] for b in blocks])[keep],
-                    *(f32[:, j].astype(float) for j in range(3)), valid[keep])
+        return Grid(self.dx_m, lo * BLOCK + (kept[0] if kept.size else 0), u[keep].copy(),
+                    *(f32[j, keep].copy() for j in range(3)), valid[keep].copy())
