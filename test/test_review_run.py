@@ -193,7 +193,7 @@ def _write(path: Path, text: str) -> Path:
 # case -> (error message, builder (tmp_path, simulated bag) -> (the file to name, extra args))
 BAD_INPUT = {
     'missing bag': ('no such bag', lambda tmp, bag: (tmp / 'absent', [])),
-    'corrupt bag': ('unreadable bag', lambda tmp, bag: (
+    'corrupt bag': ('unfinished (no MCAP footer', lambda tmp, bag: (
         _write(tmp / 'corrupt.mcap', '\x89MCAP0\r\n' + 'garbage' * 100), [])),
     'empty bag': ('has no messages', lambda tmp, bag: (_bag_with(
         tmp / 'empty', run_scenario('german-low', SPEED, 1.0, 1000.0, 'ideal', 3), ('imu',), 0),
