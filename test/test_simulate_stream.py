@@ -171,3 +171,18 @@ def test_profile_file_shorter_than_the_run_is_one_line_and_no_bag(tmp_path: Path
                  '--speed', '20', '--duration', '4', '--rate', '200', '--gnss']) == 0
     assert main(['simulate', '--out', str(tmp_path / 'neg'), '--start-km', '-1', '--gnss']) == 2
     assert '--gnss: the simulated line starts at chainage 0' in capsys.readouterr().err
+
+
+def test_settled_vehicle_stays_at_rest_on_a_constant_irregularity():
+    from railgsa_ros.simulate import vehicle_bank
+    from railgsa_ros.vehicle import VehicleParams
+
+    theta = VehicleParams().as_array() * np.array([[1.0] * 5, [1.2, 0.9, 1.1, 0.8, 1.3]])
+    bank = vehicle_bank(theta, 1 / 2000.0)
+    bank.settle(4e-3)
+    settled = bank.state.copy()
+    out = bank.process(np.full(3000, 4e-3))
+    assert np.abs(out).max() < 1e-9  # m/s^2: at rest (a step of 4 mm would give ~10 m/s^2)
+    np.testing.assert_allclose(bank.state, settled, rtol=1e-9, atol=1e-15)
+    bank.reset()
+    assert np.abs(bank.process(np.full(3000, 4e-3))).max() > 1.0
