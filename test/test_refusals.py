@@ -182,3 +182,13 @@ def test_simulate_and_bode_never_write_onto_their_input(tmp_path, capsys) -> Non
     assert VehicleParams() == VehicleParams(**{
         k: float(v) for k, v in (line.strip().split(': ') for line in
                                  vehicle.read_text().splitlines()[1:])})
+
+
+def test_fleet_never_writes_onto_its_input(bag, tmp_path, capsys) -> None:
+    pytest.importorskip('duckdb')
+    assert main(['fleet', 'ingest', str(bag), '--db', str(bag / 'fleet.duckdb')]) == 2
+    assert 'the output is inside the input' in one_error_line(capsys)
+    db = tmp_path / 'fleet.duckdb'
+    assert main(['fleet', 'report', '--db', str(db), '--out', str(db), '--overwrite']) == 2
+    assert 'the output is the input' in one_error_line(capsys)
+    assert not (bag / 'fleet.duckdb').exists() and not db.exists()

@@ -90,10 +90,12 @@ def pass_options(args: argparse.Namespace) -> object:
 
 def run_ingest(args: argparse.Namespace) -> int:
     """Ingest, printing one line per bag and a summary; exit 1 when a bag failed."""
+    from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.fleet import db
     from railgsa_ros.fleet.gnss import load_geometry
     from railgsa_ros.fleet.ingest import ingest
 
+    refuse_overlap(args.db, (*args.bags, args.params, args.vehicle, args.line_geometry))
     options = pass_options(args)
     geometry = None
     if args.line_geometry:
@@ -126,8 +128,10 @@ def run_ingest(args: argparse.Namespace) -> int:
 
 def run_report(args: argparse.Namespace) -> int:
     """Write the report and print its path."""
+    from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.fleet.report import write_report
 
+    refuse_overlap(args.out, (args.db,))
     print(write_report(args.db, args.out, args.overwrite))
     return 0
 
