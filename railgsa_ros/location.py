@@ -10,8 +10,8 @@ odometry and the fixes only (``gnss_pass``):
 
 - Fixes without a fix (status -1) or with non-finite positions are left out (counted).
 - Each fix gets the odometry chainage of its stamp (the held odometry speed integrated over the
-  odometry stamps, 0 at the run's first IMU stamp) and its position in a local tangent plane
-  (east, north) about the first good fix.
+  odometry stamps, 0 at the run's first IMU stamp) and its position in the local tangent plane
+  (east, north) at the first good fix (``geo.geodetic_to_enu``, exact through ECEF).
 - **Track.** East and north are smoothed against the odometry chainage by cubic smoothing
   splines (``scipy.interpolate.make_smoothing_spline``) whose penalty makes the smoothing kernel
   about ``SMOOTH_M`` = 50 m wide (lam = SMOOTH_M^4 / mean spacing of the fixes; the GCV choice of
@@ -44,13 +44,12 @@ from numpy.polynomial import polynomial
 from railgsa_ros.bag.messages import ODOMETRY, ODOMETRY_FIELDS
 from railgsa_ros.bag.reader import NAV_SAT_FIX, GnssFixes, TopicData, iter_topics
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.geo import enu_to_geodetic, geodetic_to_enu
 
 DIRECTIONS = ('increasing', 'decreasing')
 SMOOTH_M = 50.0  # width of the GNSS track smoothing, m of chainage
 CLIP = 4.0  # residuals beyond CLIP robust standard deviations are left out of the scale fit
 CLIP_ROUNDS = 3
-EARTH_A = 6378137.0  # WGS84 semi-major axis, m
-EARTH_F = 1 / 298.257223563  # WGS84 flattening
 
 
 @dataclass(frozen=True)
@@ -127,29 +126,20 @@ class Location:
         return self.track.lat_lon(chainage_m)
 
 
-def _radii(lat_deg: float) -> tuple[float, float]:
-    """Meridian and prime-vertical radii of curvature (m) of WGS84 at a latitude."""
-    e2 = EARTH_F * (2 - EARTH_F)
-    s = np.sin(np.radians(lat_deg))
-    w = np.sqrt(1 - e2 * s * s)
-    return EARTH_A * (1 - e2) / w ** 3, EARTH_A / w
-
-
 def to_local(lat_deg: np.ndarray, lon_deg: np.ndarray,
              origin: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(east, north) m of WGS84 points in the tangent plane at ``origin``."""
-    meridian, normal = _radii(origin[0])
-    north = np.radians(np.asarray(lat_deg) - origin[0]) * meridian
-    east = np.radians(np.asarray(lon_deg) - origin[1]) * normal * np.cos(np.radians(origin[0]))
-    return east, north
+    """(east, north) m of WGS84 points (on the ellipsoid) in the tangent plane at ``origin``
+    (``geo.geodetic_to_enu``)."""
+    enu = geodetic_to_enu(np.asarray(lat_deg, float), np.asarray(lon_deg, float), 0.0, *origin)
+    return enu[..., 0], enu[..., 1]
 
 
 def from_local(east: np.ndarray, north: np.ndarray,
                origin: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(lat, lon) deg of tangent-plane points (m) at ``origin`` (inverse of ``to_local``)."""
-    meridian, normal = _radii(origin[0])
-    lat = origin[0] + np.degrees(np.asarray(north) / meridian)
-    lon = origin[1] + np.degrees(np.asarray(east) / (normal * np.cos(np.radians(origin[0]))))
+    """(lat, lon) deg of tangent-plane points (m) at ``origin`` (``geo.enu_to_geodetic``)."""
+    east = np.asarray(east, float)
+    lat, lon, _ = enu_to_geodetic(np.stack([east, np.asarray(north, float),
+                                            np.zeros_like(east)], -1), *origin)
     return lat, lon
 
 

@@ -212,6 +212,26 @@ def test_gnss_corrects_a_wheel_diameter_error_and_places_defects_within_1_m(tmp_
     assert km == pytest.approx(12.5 - s / 1e3)
 
 
+def test_simulated_gnss_and_wheel_error_put_defects_within_1_m_of_the_truth(tmp_path: Path
+                                                                          ) -> None:
+    from railgsa_ros.geo import default_line
+
+    bag = tmp_path / 'sim'
+    dips = {803.0: 0.03, 1904.0: 0.04}  # dip centres (start + length / 2), m from the start
+    assert main(['simulate', '--out', str(bag), '--speed', '30', '--duration', '80',
+                 '--defects', 'dip@800:len=6:depth=0.03,dip@1900:len=8:depth=0.04',
+                 '--odom-scale-error', '0.004', '--gnss', '--seed', '4']) == 0
+    review = build_review(ReviewOptions(bag, dists=None))
+    assert review.location.scale.value == pytest.approx(1 / 1.004, abs=3e-4)
+    for x in dips:
+        assert abs(_deepest(review.exceedances, x).peak_m - x) < 1.0
+    lat, lon = review.location.lat_lon(np.array(list(dips)))
+    true_lat, true_lon = default_line(2400.0).position(np.array(list(dips)))
+    east, north = to_local(lat, lon, (float(true_lat[0]), float(true_lon[0])))
+    true_e, true_n = to_local(true_lat, true_lon, (float(true_lat[0]), float(true_lon[0])))
+    assert np.all(np.hypot(east - true_e, north - true_n) < 2.0)
+
+
 def test_review_writes_defects_sections_and_a_json_summary(tmp_path: Path, capsys) -> None:
     run = run_scenario('german-low', 25.0, 40.0, 1000.0, 'adxl355', 7,
                        defects='dip@400:len=6:depth=0.03')
