@@ -1,4 +1,4 @@
-"""Accuracy of the inversion methods against the exact-physics baseline of the same run.
+"""Accuracy of the inversion against ground truth and the exact-physics baseline of the same run.
 
 (a) Paper mode: noise-free nominal vehicle, the paper's profile at 10 m/s, feedback (Eq. 7,
     K = 1000) with no band: relative error max|u_rec - u| / max|u| (target <= 1e-3).
@@ -7,24 +7,42 @@
     parameters, scored on distance in D1 (score.score: both signals reach the score in D1 once,
     100 m left out at each end): RMSE (target <= 0.3 mm), correlation (>= 0.95) and peak error
     on the 8 mm dip (<= 0.5 mm). Baseline: FFT of the whole record divided by G(j w), D1-limited.
-(c) The multirate band stage (default) against the single-rate FIR (``multirate: false``) on the
-    runs of (b): scores of both and the largest and RMS difference of the outputs (mm), both
-    samples of the same stamps, the first and last 100 m left out.
+(c) Sensor delay: the same runs without dropouts as a sensor with a causal chip filter delivers
+    them (every sample stamped the filter's group delay after the acceleration it holds: ADXL355
+    model 20 m/s, BMI088 model 30 m/s), D1 RMSE with and without ``sensor_delay_s``.
+(d) Variable speed with stops: named speed profiles; D1 error on the stretches above 3 m/s (and
+    10 m/s) of the per-speed time-domain band and of the chainage grid (time-domain pre-band,
+    0.25 m grid, D1 on distance), both against the truth band-passed on distance.
+(e) Dropouts of 0.05, 0.2 and 1 s at four places of two runs (ADXL355, 20 m/s): largest D1 error
+    of the output samples within 50 m of the dropout (mean and worst of the eight) and RMS over
+    the 100 m after it, for the model fill (default), a straight line (the old bridge) and a
+    filter reset.
+(f) Parameter mismatch: true k_s +15 %, k_us -10 %, c -15 %, BMI088 model at 30 m/s, inverted
+    with the nominal and with the true parameters, beside the FFT baseline with the true ones.
+``--multirate`` adds the multirate band stage against the single-rate FIR on the runs of (b).
 
-Usage: python benchmarks/bench_inverse_accuracy.py [--length 800] [--seed 1]
+Usage: python benchmarks/bench_inverse_accuracy.py [--length 800] [--seed 1] [--multirate]
+    [--tables abcdef]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
+from unittest import mock
 
 import numpy as np
 
+from railgsa_ros.imu import imu_spec
 from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.pipeline import InversionPipeline, vertical
-from railgsa_ros.inverse.score import exact_inverse, score
+from railgsa_ros.inverse.gapfill import GapFiller
+from railgsa_ros.inverse.grid import ChainageGrid, GridOutput, grid_config
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+from railgsa_ros.inverse.score import band_distance, exact_inverse, near, reconstruct, score
+from railgsa_ros.inverse.sensor import sensor_delay_s
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.simulate import simulate
+from railgsa_ros.speed_profile import parse_speed_profile
 from railgsa_ros.track import paper_profile
 from railgsa_ros.vehicle import VehicleParams
 
@@ -33,6 +51,10 @@ DEFECTS = f'dip@{DIP[0]:g}:len={DIP[1]:g}:depth=8e-3,joint@450,weld@600'
 METHODS = {'spectral (default)': {'method': 'spectral'}, 'feedback': {'method': 'feedback'},
            'kalman (live)': {'method': 'kalman'},
            'kalman + RTS smoother': {'method': 'kalman', 'smoother': True}}
+PROFILES = {'braking 1.6 m/s^2 + stop': 'accel:0-26:26s,cruise:26:20s:ripple=0.5,'
+                                        'brake:26-0:16s,stop:10s,accel:0-20:20s,cruise:20:15s',
+            'station (preset)': 'station', 'stop-and-go (preset)': 'stop-and-go'}
+MISMATCH = {'k_s': 1.15, 'k_us': 0.90, 'c': 0.85}
 
 
 def paper_mode() -> float:
@@ -47,13 +69,43 @@ def paper_mode() -> float:
     return float(np.max(np.abs(out.u_m - u)) / np.max(np.abs(u)))
 
 
-def reconstruct(run, overrides: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Run the streaming pipeline over a simulated run (odometry = the run's speed)."""
-    pipe = InversionPipeline(InversionConfig(**overrides), noise_variance=run.accel_covariance)
-    acc = vertical(run.accel, 'z')
-    outs = [pipe.push(run.stamps_ns, acc, run.speed_mps), pipe.flush()]
-    chain = np.concatenate([o.chainage_m for o in outs]) + run.chainage_m[0]
-    return chain, np.concatenate([o.u_m for o in outs])
+def d1(run, config: InversionConfig | None = None, **kw) -> float:
+    """D1 RMSE (m) of the pipeline over a run (score.score, 100 m left out at each end)."""
+    chain, out = reconstruct(run, config, **kw)
+    return score(chain, out.u_m, run.chainage_m, run.truth_u_m).rmse
+
+
+def baseline(run, speed: float, vehicle=None):
+    base = exact_inverse(run.stamps_ns, vertical(run.accel, 'z'), speed, vehicle=vehicle)
+    return score(run.chainage_m, base, run.chainage_m, run.truth_u_m, defect=DIP)
+
+
+def methods_table(length: float, seed: int, multirate: bool) -> None:
+    print('(b) ADXL355, German low + 8 mm dip / 3 mm joint / 0.3 mm weld, D1 on distance')
+    print('| v m/s | method                 | RMSE mm | corr    | dip peak mm | / base | pass |')
+    print('|---|---|---|---|---|---|---|')
+    rates = []
+    for speed in (10.0, 20.0, 40.0):
+        run = run_scenario('german-low', speed, length / speed, None, 'adxl355', seed=seed,
+                           defects=DEFECTS)
+        b = baseline(run, speed)
+        for name, overrides in METHODS.items():
+            multi = reconstruct(run, InversionConfig(**overrides))
+            s = score(multi[0], multi[1].u_m, run.chainage_m, run.truth_u_m, defect=DIP)
+            print(row(name, speed, s, b.rmse))
+            if multirate:
+                single = reconstruct(run, InversionConfig(**overrides, multirate=False))
+                s1 = score(single[0], single[1].u_m, run.chainage_m, run.truth_u_m, defect=DIP)
+                rates.append((speed, name, s1.rmse, s.rmse, *difference(single, multi)))
+        print(row('exact baseline (FFT)', speed, b, b.rmse))
+    if multirate:
+        print('\n(b2) multirate band stage against the single-rate FIR, same runs')
+        print('| v m/s | method                 | RMSE single mm | RMSE multirate mm | '
+              'max diff mm | RMS diff mm |')
+        print('|---|---|---|---|---|---|')
+        for speed, name, rmse1, rmse, big, rms in rates:
+            print(f'| {speed:4.0f} | {name:<22} | {rmse1 * 1e3:8.4f} | {rmse * 1e3:8.4f} | '
+                  f'{big * 1e3:9.5f} | {rms * 1e3:9.5f} |')
 
 
 def row(name: str, speed: float, s, base_rmse: float) -> str:
@@ -62,47 +114,134 @@ def row(name: str, speed: float, s, base_rmse: float) -> str:
             f'{s.peak_error * 1e3:8.4f} | {s.rmse / base_rmse:6.2f} | {"yes" if ok else "no":4} |')
 
 
-def difference(single: tuple[np.ndarray, np.ndarray], multi: tuple[np.ndarray, np.ndarray],
-               margin_m: float = 100.0) -> tuple[float, float]:
+def difference(single, multi, margin_m: float = 100.0) -> tuple[float, float]:
     """Largest and RMS difference (m) of two reconstructions of the same samples."""
     chain = single[0]
     keep = (chain >= chain[0] + margin_m) & (chain <= chain[-1] - margin_m)
-    diff = multi[1][keep] - single[1][keep]
+    diff = multi[1].u_m[keep] - single[1].u_m[keep]
     return float(np.max(np.abs(diff))), float(np.sqrt(np.mean(diff ** 2)))
+
+
+def delay_table(length: float, seed: int) -> None:
+    print('\n(c) sensor delay of a causal chip filter (no dropouts), D1 RMSE mm')
+    print('| sensor, v | group delay ms | no delay | delayed, not compensated | '
+          'compensated | exact baseline |')
+    print('|---|---|---|---|---|---|')
+    for name, speed in (('adxl355', 20.0), ('bmi088', 30.0)):
+        run = run_scenario('german-low', speed, length / speed, None,
+                           imu_spec(name, dropout_fraction=0), seed=seed, defects=DEFECTS)
+        tau = sensor_delay_s(name)
+        cells = [d1(run), d1(run, sensor_delay_s=tau),
+                 d1(run, InversionConfig(sensor_delay_s=tau), sensor_delay_s=tau),
+                 baseline(run, speed).rmse]
+        print(f'| {name}, {speed:g} m/s | {tau * 1e3:.2f} | '
+              + ' | '.join(f'{c * 1e3:.4f}' for c in cells) + ' |')
+
+
+def variable_speed_table(seed: int) -> None:
+    print('\n(d) variable speed with stops (ADXL355 model), D1 RMSE mm on distance')
+    print('| profile | length m | time-domain band > 3 m/s | grid + distance band > 3 m/s | '
+          'time-domain > 10 m/s | grid > 10 m/s | RMS difference > 3 m/s |')
+    print('|---|---|---|---|---|---|---|')
+    for name, spec in PROFILES.items():
+        prof = parse_speed_profile(spec)
+        run = run_scenario('german-low', prof, prof.duration_s, None, 'adxl355', seed=seed,
+                           defects='dip@700:len=6:depth=8e-3')
+        dx = 0.25
+        x = np.arange(run.chainage_m[0], run.chainage_m[-1], dx)
+        truth = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), dx)
+        moving = np.concatenate([[True], np.diff(run.chainage_m) > 0])
+        v = np.interp(x, run.chainage_m[moving], run.speed_mps[moving])
+        inner = (x > x[0] + 100) & (x < x[-1] - 100)
+        chain, out = reconstruct(run)
+        on = np.concatenate([[True], np.diff(chain) > 0]) & np.isfinite(out.u_m)
+        time_u = np.interp(x, chain[on], out.u_m[on])
+        chain, out = reconstruct(run, grid_config(InversionConfig()))
+        g = ChainageGrid()
+        grid = GridOutput.concat([g.push(Output(out.stamps_ns, chain, out.u_m, out.quality,
+                                                out.speed_mps)), g.flush()])
+        grid_u = np.interp(x, grid.chainage_m, grid.u_m)  # NaN next to INVALID points
+        inner &= np.isfinite(grid_u)  # both scored where the grid is not INVALID
+        cells = []
+        for vmin in (3.0, 10.0):
+            keep = inner & (v > vmin)
+            cells += [np.sqrt(np.mean((u - truth)[keep] ** 2)) for u in (time_u, grid_u)]
+        keep = inner & (v > 3.0)
+        cells.append(np.sqrt(np.mean((time_u - grid_u)[keep] ** 2)))
+        print(f'| {name} | {x[-1] - x[0]:.0f} | ' + ' | '.join(f'{c * 1e3:.4f}' for c in cells)
+              + ' |')
+
+
+def _straight(self, gap_ns, after_ns, after, speed):
+    """The old bridge: a straight line between the samples either side of the gap."""
+    return np.interp(gap_ns, [self.stamps[-1], after_ns], [self.accel[-1], after])
+
+
+def dropout_table() -> None:
+    print('\n(e) dropouts (ADXL355 model, 20 m/s, 8 places in 2 runs), D1 error mm')
+    print('| dropout s | bridge | max within 50 m (mean) | max within 50 m (worst) | '
+          'RMS 100 m after (mean) |')
+    print('|---|---|---|---|---|')
+    runs = [run_scenario('german-low', 20.0, 40.0, None, imu_spec('adxl355', dropout_fraction=0),
+                         seed=s, defects='dip@400:len=6:depth=8e-3') for s in (1, 3)]
+    for length in (0.05, 0.2, 1.0):
+        res: dict[str, list[tuple[float, float]]] = {'model (default)': [],
+                                                     'straight line': [], 'reset': []}
+        for run, at in itertools.product(runs, (10.0, 15.0, 20.0, 25.0)):
+            t = run.t_true_s - run.t_true_s[0]
+            keep = ~((t >= at) & (t < at + length))
+            x_gap = float(np.interp(at, t, run.chainage_m))
+            for name in res:
+                cfg = InversionConfig(max_bridge_s=0.01) if name == 'reset' else None
+                with mock.patch.object(GapFiller, 'fill', _straight) if name == 'straight line' \
+                        else mock.patch.object(GapFiller, 'fill', GapFiller.fill):
+                    chain, out = reconstruct(run, cfg, keep)
+                big = near(chain, out.u_m, run.chainage_m, run.truth_u_m, x_gap)[0]
+                after = near(chain, out.u_m, run.chainage_m, run.truth_u_m, x_gap + 50.0)[1]
+                res[name].append((big, after))
+        for name, values in res.items():
+            big, after = np.array(values).T * 1e3
+            print(f'| {length:g} | {name} | {big.mean():.3f} | {big.max():.3f} | '
+                  f'{after.mean():.3f} |')
+
+
+def mismatch_table(length: float, seed: int) -> None:
+    nominal = VehicleParams()
+    true = VehicleParams(**{**nominal.__dict__, **{k: getattr(nominal, k) * f
+                                                   for k, f in MISMATCH.items()}})
+    run = run_scenario('german-low', 30.0, length / 30.0, None, 'bmi088', seed=seed,
+                       defects=DEFECTS, vehicle=true)
+    print('\n(f) parameter mismatch: true k_s +15 %, k_us -10 %, c -15 %; BMI088 model, 30 m/s')
+    print('| inversion with | D1 RMSE mm | dip peak error mm |')
+    print('|---|---|---|')
+    for name, vehicle in (('nominal parameters', nominal), ('true parameters', true)):
+        chain, out = reconstruct(run, vehicle=vehicle)
+        s = score(chain, out.u_m, run.chainage_m, run.truth_u_m, defect=DIP)
+        print(f'| {name} | {s.rmse * 1e3:.4f} | {s.peak_error * 1e3:.4f} |')
+    b = baseline(run, 30.0, true.as_array())
+    print(f'| exact baseline (FFT, true parameters) | {b.rmse * 1e3:.4f} | '
+          f'{b.peak_error * 1e3:.4f} |')
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--length', type=float, default=800.0, help='track length, m')
     parser.add_argument('--seed', type=int, default=1)
+    parser.add_argument('--multirate', action='store_true',
+                        help='add the multirate against single-rate table')
+    parser.add_argument('--tables', default='abcdef', help='tables to print (default abcdef)')
     args = parser.parse_args()
-    err = paper_mode()
-    print(f'(a) paper mode, feedback K = 1000, no band, 10 m/s: relative error {err:.2e} '
-          f'(target <= 1e-3: {"yes" if err <= 1e-3 else "no"})\n')
-    print('(b) ADXL355, German low + 8 mm dip / 3 mm joint / 0.3 mm weld, D1 on distance')
-    print('| v m/s | method                 | RMSE mm | corr    | dip peak mm | / base | pass |')
-    print('|---|---|---|---|---|---|---|')
-    rates = []
-    for speed in (10.0, 20.0, 40.0):
-        run = run_scenario('german-low', speed, args.length / speed, None, 'adxl355',
-                           seed=args.seed, defects=DEFECTS)
-        base = exact_inverse(run.stamps_ns, vertical(run.accel, 'z'), speed)
-        b = score(run.chainage_m, base, run.chainage_m, run.truth_u_m, defect=DIP)
-        for name, overrides in METHODS.items():
-            multi = reconstruct(run, overrides)
-            s = score(*multi, run.chainage_m, run.truth_u_m, defect=DIP)
-            print(row(name, speed, s, b.rmse))
-            single = reconstruct(run, {**overrides, 'multirate': False})
-            s1 = score(*single, run.chainage_m, run.truth_u_m, defect=DIP)
-            rates.append((speed, name, s1.rmse, s.rmse, *difference(single, multi)))
-        print(row('exact baseline (FFT)', speed, b, b.rmse))
-    print('\n(c) multirate band stage against the single-rate FIR, same runs')
-    print('| v m/s | method                 | RMSE single mm | RMSE multirate mm | '
-          'max diff mm | RMS diff mm |')
-    print('|---|---|---|---|---|---|')
-    for speed, name, rmse1, rmse, big, rms in rates:
-        print(f'| {speed:4.0f} | {name:<22} | {rmse1 * 1e3:8.4f} | {rmse * 1e3:8.4f} | '
-              f'{big * 1e3:9.5f} | {rms * 1e3:9.5f} |')
+    if 'a' in args.tables:
+        err = paper_mode()
+        print(f'(a) paper mode, feedback K = 1000, no band, 10 m/s: relative error {err:.2e} '
+              f'(target <= 1e-3: {"yes" if err <= 1e-3 else "no"})\n')
+    tables = {'b': lambda: methods_table(args.length, args.seed, args.multirate),
+              'c': lambda: delay_table(args.length, args.seed),
+              'd': lambda: variable_speed_table(args.seed), 'e': dropout_table,
+              'f': lambda: mismatch_table(args.length, args.seed)}
+    for key, table in tables.items():
+        if key in args.tables:
+            table()
 
 
 if __name__ == '__main__':

@@ -89,10 +89,12 @@ def score(chainage_rec: np.ndarray, u_rec: np.ndarray, chainage_true: np.ndarray
 
 
 def reconstruct(run: Run, config: InversionConfig | None = None,
-                keep: np.ndarray | None = None, sensor_delay_s: float = 0.0
+                keep: np.ndarray | None = None, sensor_delay_s: float = 0.0,
+                vehicle: VehicleParams | np.ndarray | None = None
                 ) -> tuple[np.ndarray, Output]:
     """Pipeline output over the run's samples ``keep`` (bool mask, None: all; odometry = the
-    true speed) and its chainage on the truth's axis (m).
+    true speed; ``vehicle``: the parameters the inversion assumes, None: nominal; rate_hz: the
+    run's) and its chainage on the truth's axis (m).
 
     ``sensor_delay_s`` plays a sensor whose causal filter delays the signal by that much (the
     simulator's filter is delay-compensated): every sample is stamped that much after the
@@ -100,7 +102,8 @@ def reconstruct(run: Run, config: InversionConfig | None = None,
     as odometry would place it.
     """
     keep = np.ones(run.stamps_ns.size, bool) if keep is None else keep
-    pipe = InversionPipeline(config, noise_variance=run.accel_covariance)
+    config = (config if config is not None else InversionConfig()).with_(rate_hz=run.rate_hz)
+    pipe = InversionPipeline(config, vehicle, noise_variance=run.accel_covariance)
     stamps = run.stamps_ns[keep] + np.int64(round(sensor_delay_s * 1e9))
     out = Output.concat([pipe.push(stamps, vertical(run.accel[keep], 'z'), run.speed_mps[keep]),
                          pipe.flush()])
