@@ -23,6 +23,7 @@ from railgsa_ros.bag.reader import _mcap_topics
 from railgsa_ros.cli.main import main
 from railgsa_ros.errors import InputError, InputWarning
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
+from railgsa_ros.playback.source import BagSource
 
 RATE_HZ = 1000
 START_NS = 1_700_000_000 * 10**9
@@ -94,6 +95,9 @@ def test_corrupted_chunk_is_an_error_in_every_reader(tmp_path, capsys, compress)
     with pytest.raises(Exception, match=r'(?i)checksum|zstandard'), AnyReader([bag]) as reader:
         for _ in reader.messages():
             pass
+    with pytest.raises(InputError, match=f'^{bag}: damaged bag data'), BagSource(bag) as source:
+        for _ in source.messages(['/imu/data']):  # the replay
+            pass
     with pytest.raises((McapError, Exception)), file.open('rb') as stream:
         for _ in make_reader(stream, validate_crcs=True).iter_messages():
             pass
@@ -117,6 +121,7 @@ import os, signal, sys, time
 sys.path.insert(0, sys.argv[2])
 from test_bag_integrity import imu_messages
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
+from railgsa_ros.playback.source import BagSource
 from railgsa_ros.bag.messages import IMU
 stamps, _, messages = imu_messages(int(sys.argv[3]))
 bag = BagRecorder(sys.argv[1], split_s=2.0, compress=sys.argv[4] == 'zstd')
