@@ -49,6 +49,12 @@ class UncertaintyConfig:
     qoi: str = _p('peak,rms', "window quantities of interest, comma-separated: peak (u at the "
                               "largest |mean|), rms; '' = no sensitivity windows")
     n_mc: int = _p(20000, 'surrogate Monte Carlo samples per delta estimate', (256, 10**7))
+    sensor_noise: bool = _p(True, 'add the sensor noise propagated through the inverse and the '
+                                  'band (from the IMU covariance or noise_std_mps2) to the band')
+    delay_std_s: float = _p(5e-4, 'standard uncertainty of the sensor delay after compensation, '
+                                  's: adds |du/dt| * delay_std_s to the band', (0.0, 1.0))
+    scale_std: float = _p(2e-3, 'standard uncertainty of the accelerometer scale factor '
+                                '(relative): adds scale_std * |u| to the band', (0.0, 1.0))
     inversion: InversionConfig = field(default_factory=InversionConfig)
 
     def __post_init__(self) -> None:

@@ -17,13 +17,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design, build_design
+from railgsa_ros.uncertainty.terms import SensorTerms
 from railgsa_ros.uncertainty.windows import Sensitivity, WindowAnalyzer
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.uq.uncertainty_file import table3
-from railgsa_ros.vehicle import VehicleParams
+from railgsa_ros.vehicle import VehicleParams, as_theta
 
 BLOCK = 256  # samples per quantile block: 2 MB at 1024 germ samples (cache-sized, 10 % faster)
 GEMM_ROWS = 16  # samples per BLAS call (16 x 9 x 1024 is below OpenBLAS's threading threshold)
@@ -62,9 +64,12 @@ class Update:
     bank_u_m: np.ndarray | None = None
 
 
-def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarray
+def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarray,
+                    sensor_std_m: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(lower, mean, upper), each (K,), from bank outputs u (P, K) in metres.
+    """(lower, mean, upper), each (K,), from bank outputs u (P, K) in metres; ``sensor_std_m``
+    (K,) m: the independent sensor terms (``uncertainty.terms``), added to surrogate sample j as
+    sensor_std_m * design.noise_germ[j].
 
     The mean is the PCE's c_0. The quantiles are those of ``np.quantile`` (method 'linear') over
     the S surrogate samples c_0 + c[1:] @ germ_basis: the two ranks around each quantile are
@@ -83,11 +88,15 @@ def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarra
     rows = -(-count // GEMM_ROWS) * GEMM_ROWS
     dev = np.zeros((rows, coef.shape[1] - 1))
     dev[:count] = coef[:, 1:]
+    sensor = np.zeros(rows)
+    if sensor_std_m is not None:
+        sensor[:count] = sensor_std_m
     bounds = np.empty((rows, 2))
     for lo in range(0, rows, BLOCK):
         block = dev[lo:lo + BLOCK]
         surrogate = (block.reshape(-1, GEMM_ROWS, block.shape[1]) @ design.germ_basis
                      ).reshape(block.shape[0], size)  # deviations from the mean, (K', S)
+        surrogate += sensor[lo:lo + BLOCK, None] * design.noise_germ
         picked = order_statistics(surrogate, np.concatenate([rank, rank + 1]))
         below, above = picked[:, :2], picked[:, 2:]
         bounds[lo:lo + BLOCK] = below + (above - below) * frac
@@ -151,6 +160,11 @@ class UncertaintyStream:
                                    dists if dists is not None else table3(vehicle))
         self.pipeline = InversionPipeline(self.config.inversion, self.design.theta,
                                           noise_variance)
+        inv = self.config.inversion
+        floor = None if inv.band == 'none' else NoiseFloor(
+            as_theta(vehicle), inv.band, inv.band_order, inv.rate_hz,
+            noise_variance if noise_variance is not None else inv.noise_std_mps2 ** 2)
+        self.terms = SensorTerms(self.config, None if floor is None else floor.sigma_m)
         self._windows = WindowAnalyzer(self.config, self.design, defer)
         self._quantiles = (self.config.lower_quantile, self.config.upper_quantile)
 
@@ -181,7 +195,9 @@ class UncertaintyStream:
         return self._windows.analyze_deferred()
 
     def _update(self, out: Output) -> Update:
-        lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m)
+        sensor = self.terms.std(out.stamps_ns, self.design.projector[0] @ out.u_m,
+                                out.speed_mps, out.quality)
+        lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m, sensor)
         band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper)
         return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m),
                       out.u_m)

@@ -7,6 +7,13 @@ The surrogate on a fixed scrambled Sobol' germ sample Z (S, n) is a fixed linear
 coefficients: its deviations from the mean (c_0) are ``c[1:] @ germ_basis`` with ``germ_basis`` =
 basis(Z) without the constant column, transposed (T - 1, S). Quantiles per sample cost one
 (T - 1) x S product (T - 1 = 9 < P = 19 for pem5) and one sort.
+
+The sensor terms of the band (``uncertainty.terms``) are independent of the parameters and
+Gaussian: each germ sample j is paired with a standard-normal value ``noise_germ[j]``, the
+quantiles of the 1/2 S, ..., (S - 1/2)/S probabilities in a seeded random order (exact marginal,
+independent pairing), so surrogate sample j of a sample with sensor std s is
+c_0 + c[1:] . psi_j + s * noise_germ[j]: the band and the exceedance probabilities use the same
+samples.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special
 
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.uncertainty.config import UncertaintyConfig
@@ -40,6 +48,7 @@ class Design:
     germ_basis: np.ndarray
     fit: str
     germ: str
+    noise_germ: np.ndarray
 
     @property
     def points(self) -> int:
@@ -83,4 +92,10 @@ def build_design(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
     z = sobol(n, config.germ_samples, config.seed, germ)
     germ_basis = np.ascontiguousarray(basis(z, alpha, germ)[:, 1:].T)
     return Design(names, tuple(dists.values()), xi, theta, alpha, projector, germ_basis, fit,
-                  germ)
+                  germ, noise_germ(config.germ_samples, config.seed))
+
+
+def noise_germ(size: int, seed: int) -> np.ndarray:
+    """Standard-normal quantiles at (i + 1/2) / size in a random order fixed by seed: (size,)."""
+    rng = np.random.default_rng([seed, 0x5E2503])
+    return special.ndtri((rng.permutation(size) + 0.5) / size)

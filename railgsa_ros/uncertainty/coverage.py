@@ -1,0 +1,83 @@
+"""Calibration of the band: how often it holds the truth on simulated runs drawn from the priors.
+
+An ensemble run draws its TRUE vehicle from the uncertain-parameter law (``draw_vehicle``) and its
+TRUE sensor around a preset (``draw_sensor``: noise density x lognormal(0, 0.3), scale factor
+N(0, preset's), bias N(0, preset's) per axis, the preset's dropouts); the band is computed with the
+nominal vehicle, the law and the preset's datasheet noise (what a user knows). ``coverage`` is the
+fraction of the band's samples (away from the ends) whose truth, band-passed on distance as the
+inversion does, lies inside the band of each nominal level.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from railgsa_ros.imu import ImuSpec, accel_covariance, imu_spec
+from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.scenario import Run
+from railgsa_ros.uncertainty.config import UncertaintyConfig
+from railgsa_ros.uncertainty.stream import offline_bands
+from railgsa_ros.uq.distributions import Distribution
+from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
+
+NOISE_SPREAD = 0.3  # log-std of the true noise density around the datasheet value
+DX_M = 0.25  # distance grid of the band-passed truth, m
+MARGIN_M = 100.0  # left out at both ends (filter edges), m
+
+
+def draw_vehicle(nominal: VehicleParams, dists: Mapping[str, Distribution],
+                 rng: np.random.Generator) -> np.ndarray:
+    """A true theta (5,): the uncertain parameters drawn from ``dists``, the rest nominal."""
+    theta = nominal.as_array().copy()
+    for name, dist in dists.items():
+        theta[PARAM_NAMES.index(name)] = float(dist.sample(1, rng)[0])
+    return theta
+
+
+def draw_sensor(preset: str, rng: np.random.Generator) -> ImuSpec:
+    """A true sensor around a preset (module docstring)."""
+    spec = imu_spec(preset)
+    return replace(spec, name=f'{preset}-drawn',
+                   noise_density=spec.noise_density * float(np.exp(NOISE_SPREAD *
+                                                                   rng.standard_normal())),
+                   scale_factor=spec.scale_factor * float(rng.standard_normal()),
+                   bias=tuple(np.asarray(spec.bias) * rng.standard_normal(3)))
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """Per nominal level (probability): fraction of samples whose truth is inside the band, the
+    band's mean half-width (m), and the samples scored."""
+
+    levels: tuple[float, ...]
+    inside: tuple[float, ...]
+    half_width_m: tuple[float, ...]
+    samples: int
+
+
+def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
+             dists: Mapping[str, Distribution], preset: str,
+             levels: Sequence[float] = (0.5, 0.95, 0.99)) -> Coverage:
+    """Coverage of the bands of each central ``level`` on ``run`` (its odometry = run speed),
+    computed with the datasheet noise of ``preset``."""
+    x = np.arange(run.chainage_m[0], run.chainage_m[-1], DX_M)
+    truth_x = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), DX_M,
+                            config.inversion.band, config.inversion.band_order)
+    inside, width, count = [], [], 0
+    for level in levels:
+        cfg = config.with_(lower_quantile=(1 - level) / 2, upper_quantile=(1 + level) / 2)
+        band = offline_bands(run.stamps_ns, run.accel[:, 2], run.speed_mps, config=cfg,
+                             vehicle=vehicle, dists=dists,
+                             noise_variance=accel_covariance(imu_spec(preset)))
+        chain = band.chainage_m + run.chainage_m[0]
+        truth = np.interp(chain, x, truth_x)
+        keep = ((chain > chain[0] + MARGIN_M) & (chain < chain[-1] - MARGIN_M)
+                & np.isfinite(band.mean_m))
+        lo, hi = band.lower_m[keep], band.upper_m[keep]
+        inside.append(float(np.mean((truth[keep] >= lo) & (truth[keep] <= hi))))
+        width.append(float(np.mean(hi - lo) / 2))
+        count = int(keep.sum())
+    return Coverage(tuple(levels), tuple(inside), tuple(width), count)
