@@ -1,0 +1,141 @@
+"""Vehicle parameters from a reference run whose geometry is known (issue 12 item 6).
+
+The paper's conclusion is to know k_s precisely. Which parameters the acceleration identifies
+follows from the GSA of the inverse scenario (docs/uq.md): total Sobol' indices 0.77 (k_s), 0.24
+(c) and 0.001 (k_us) at CoV 0.1, so k_s and c are estimated (``IDENTIFIABLE``) and k_us stays
+nominal. ``calibrate`` reports the condition number of the Fisher information of any requested
+set (scaled to relative parameters), so an unidentifiable choice shows as a large number.
+
+Model: the band reconstruction u(theta) (the streaming pipeline, a bank of parameter sets) on a
+stretch against the reference profile band-passed on distance the same way (``score``). Residual
+r(p) = u(theta(p)) - u_ref at the reconstruction's samples, p = ln(theta / nominal) of the chosen
+parameters. Gauss-Newton with a Gaussian prior on p (from the uncertainty law: std sigma / mu)
+and forward-difference Jacobian columns computed in the same bank run; the posterior (Laplace)
+covariance is (J^T J / s^2 + P0^-1)^-1 with s^2 the residual variance times the residual's
+integrated autocorrelation (the samples of a band-limited residual are not independent).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from railgsa_ros.errors import InputError
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.uq.distributions import Distribution
+from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
+
+IDENTIFIABLE = ('k_s', 'c')
+STEP = 1e-3  # relative finite-difference step of the Jacobian
+ITERATIONS = 8
+DX_M = 0.25  # grid of the band-passed reference, m
+MARGIN_M = 50.0  # left out at both ends of the stretch (filter edges), m
+MIN_CORRELATION = 0.8  # reference and reconstruction must agree this well before calibration
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Posterior of the calibrated parameters: names, mean (n,) and covariance (n, n) in physical
+    units, the full theta (5,), the residual RMS before and after (m), the Fisher condition
+    number, the correlation of reconstruction and reference before, and the points used."""
+
+    names: tuple[str, ...]
+    mean: np.ndarray
+    covariance: np.ndarray
+    theta: np.ndarray
+    rmse_before_m: float
+    rmse_after_m: float
+    condition: float
+    correlation: float
+    points: int
+
+    def vehicle(self) -> VehicleParams:
+        """The calibrated vehicle (posterior mean)."""
+        return VehicleParams(*self.theta)
+
+    def uncertainty(self) -> dict[str, dict[str, float]]:
+        """The uncertainty-file ``parameters:`` entries: normal(mean, marginal std)."""
+        std = np.sqrt(np.diag(self.covariance))
+        return {n: {'dist': 'normal', 'mu': float(m), 'sigma': float(s)}
+                for n, m, s in zip(self.names, self.mean, std, strict=True)}
+
+
+def _reference_band(chainage_m: np.ndarray, u_m: np.ndarray, config: InversionConfig
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The reference profile band-passed on a DX_M grid: (x, u) m."""
+    x = np.arange(chainage_m[0], chainage_m[-1], DX_M)
+    return x, band_distance(np.interp(x, chainage_m, u_m), DX_M, config.band, config.band_order)
+
+
+def _bank(stamps_ns, acc_z, speed, config, thetas) -> Output:
+    pipe = InversionPipeline(config, thetas)
+    return Output.concat([pipe.push(stamps_ns, acc_z, speed), pipe.flush()],
+                         channels=len(thetas))
+
+
+def _correlation_time(resid: np.ndarray) -> float:
+    """Integrated autocorrelation (samples) of a residual, summed up to its first zero."""
+    r = resid - resid.mean()
+    spec = np.fft.rfft(r, 2 * r.size)
+    acf = np.fft.irfft(np.abs(spec) ** 2)[:r.size]
+    acf /= acf[0]
+    stop = int(np.argmax(acf < 0)) or acf.size
+    return float(max(1.0, 1.0 + 2.0 * acf[1:stop].sum()))
+
+
+def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
+              reference: tuple[np.ndarray, np.ndarray], config: InversionConfig,
+              vehicle: VehicleParams, prior: Mapping[str, Distribution],
+              names: tuple[str, ...] = IDENTIFIABLE) -> Calibration:
+    """Calibrate ``names`` on the stretch covered by ``reference`` = (chainage (R,) m, u (R,) m),
+    chainage counted from the first IMU sample (the pipeline's). IMU stamps (T,) ns, upward
+    specific force (T,) m/s^2, speed (T,) m/s; prior: distributions of ``names`` (their mean
+    and std define the Gaussian prior of the relative parameters)."""
+    missing = [n for n in names if n not in prior]
+    if missing or not names:
+        raise InputError(f'calibrate: no prior for {", ".join(missing) or "any parameter"}')
+    x_ref, u_ref = _reference_band(*reference, config)
+    nominal = vehicle.as_array()
+    cols = [PARAM_NAMES.index(n) for n in names]
+    p0 = np.log(np.array([prior[n].mean() for n in names]) / nominal[cols])
+    prior_prec = np.diag((np.array([prior[n].mean() for n in names]) /
+                          np.array([prior[n].std() for n in names])) ** 2)
+    p = p0.copy()
+    for it in range(ITERATIONS + 1):
+        thetas = np.tile(nominal, (len(names) + 1, 1))
+        thetas[:, cols] = nominal[cols] * np.exp(p)
+        thetas[1:, cols] *= np.exp(np.eye(len(names)) * STEP)
+        out = _bank(stamps_ns, acc_z, speed_mps, config, thetas)
+        keep = ((out.chainage_m > x_ref[0] + MARGIN_M) & (out.chainage_m < x_ref[-1] - MARGIN_M)
+                & np.all(np.isfinite(out.u_m), axis=0))
+        if keep.sum() < 100:
+            raise InputError('calibrate: the reference covers fewer than 100 reconstructed '
+                             f'samples (reference {x_ref[0]:.0f}-{x_ref[-1]:.0f} m)')
+        ref = np.interp(out.chainage_m[keep], x_ref, u_ref)
+        u = out.u_m[:, keep]
+        resid = u[0] - ref
+        if it == 0:
+            before, corr = float(np.sqrt(np.mean(resid ** 2))), float(np.corrcoef(u[0], ref)[0, 1])
+            if corr < MIN_CORRELATION:
+                raise InputError(f'calibrate: the reference does not match the run '
+                                 f'(correlation {corr:.2f} < {MIN_CORRELATION}); check the '
+                                 'chainage offset')
+        jac = (u[1:] - u[0]).T / STEP  # (N, n) per unit of p
+        s2 = np.mean(resid ** 2) * _correlation_time(resid)
+        info = jac.T @ jac / s2
+        hess = info + prior_prec
+        grad = jac.T @ resid / s2 + prior_prec @ (p - p0)
+        if it == ITERATIONS:
+            break
+        p = p - np.linalg.solve(hess, grad)
+    cov_p = np.linalg.inv(hess)
+    mean = nominal[cols] * np.exp(p)
+    theta = nominal.copy()
+    theta[cols] = mean
+    return Calibration(tuple(names), mean, cov_p * np.outer(mean, mean), theta, before,
+                       float(np.sqrt(np.mean(resid ** 2))), float(np.linalg.cond(info)), corr,
+                       int(keep.sum()))

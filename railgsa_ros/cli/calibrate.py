@@ -1,0 +1,96 @@
+"""``railgsa calibrate BAG --reference PROFILE.csv``: vehicle parameters from a surveyed stretch.
+
+Estimates the identifiable parameters (k_s and c by default: docs/uq.md, "Calibration") by
+Gauss-Newton with a Gaussian prior (``railgsa_ros.calibrate``) on the stretch the reference
+covers, and writes a vehicle YAML (``--vehicle`` of every entry point, ``vehicle_file`` of the
+nodes) and an uncertainty YAML (``--uncertainty``, ``uncertainty_file``) of the posterior.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser('calibrate', help='vehicle parameters from a reference run',
+                              description=__doc__.splitlines()[0])
+    p.add_argument('bag', help='rosbag2 bag (directory or file) of the run')
+    p.add_argument('--reference', required=True, metavar='CSV',
+                   help='surveyed profile: CSV chainage_m,u_m (chainage from the first IMU '
+                        'sample of the bag, plus --offset)')
+    p.add_argument('--offset', type=float, default=0.0, metavar='M',
+                   help='bag chainage of the reference chainage 0, m (default 0)')
+    p.add_argument('--parameters', default='k_s,c', metavar='NAMES',
+                   help='parameters to calibrate, comma-separated (default k_s,c)')
+    p.add_argument('--vehicle', metavar='YAML', help='nominal vehicle (default Table 1)')
+    p.add_argument('--uncertainty', metavar='YAML',
+                   help='prior law of the parameters (default Table 3)')
+    p.add_argument('--speed', type=float, help='constant speed in m/s, overriding odometry')
+    p.add_argument('--imu-topic', default='/imu/data', metavar='T')
+    p.add_argument('--odom-topic', default='/odom', metavar='T')
+    p.add_argument('--out-vehicle', required=True, metavar='YAML')
+    p.add_argument('--out-uncertainty', required=True, metavar='YAML')
+    p.add_argument('--overwrite', action='store_true')
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    import yaml
+
+    from railgsa_ros.bag import read_imu
+    from railgsa_ros.calibrate import calibrate
+    from railgsa_ros.errors import ConfigError, InputError
+    from railgsa_ros.fileio import atomic_output
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.pipeline import vertical
+    from railgsa_ros.track import load_csv
+    from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
+    from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, load_vehicle
+
+    names = tuple(n.strip() for n in args.parameters.split(',') if n.strip())
+    bad = [n for n in names if n not in PARAM_NAMES]
+    if bad or not names:
+        raise ConfigError(f'--parameters: expected some of {", ".join(PARAM_NAMES)}, got '
+                          f'{args.parameters!r}')
+    vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
+    prior = load_uncertainty(args.uncertainty) if args.uncertainty else table3(vehicle)
+    ref_x, ref_u = load_csv(args.reference)
+    stream = read_imu(args.bag, args.imu_topic, args.odom_topic)
+    steps = np.diff(stream.stamps_ns)
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        raise InputError(f'{args.bag}: {args.imu_topic} needs at least two distinct stamps')
+    config = InversionConfig(rate_hz=1e9 / float(np.median(steps)))
+    if args.speed is not None:
+        speed = np.full(stream.stamps_ns.size, args.speed)
+    elif stream.odom_stamps_ns.size:
+        idx = np.searchsorted(stream.odom_stamps_ns, stream.stamps_ns, side='right') - 1
+        speed = stream.speed_mps[np.clip(idx, 0, None)]
+    else:
+        raise InputError(f'{args.bag}: no odometry on {args.odom_topic}; give --speed')
+    cal = calibrate(stream.stamps_ns, vertical(stream.accel, config.accel_axis), speed,
+                    (ref_x + args.offset, ref_u), config, vehicle, prior, names)
+    theta = dict(zip(PARAM_NAMES, (float(v) for v in cal.theta), strict=True))
+    posterior = {'names': list(cal.names), 'mean': [float(m) for m in cal.mean],
+                 'covariance': [[float(c) for c in row] for row in cal.covariance]}
+    uncertain = {**{n: d for n, d in _prior_entries(prior).items() if n not in names},
+                 **cal.uncertainty()}
+    for path, doc in ((args.out_vehicle, {'vehicle': theta}),
+                      (args.out_uncertainty, {'parameters': uncertain, 'posterior': posterior})):
+        with atomic_output(path, args.overwrite) as tmp:
+            tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    std = np.sqrt(np.diag(cal.covariance))
+    for n, m, s in zip(cal.names, cal.mean, std, strict=True):
+        print(f'{n} = {m:.6g} +- {s:.3g} ({100 * s / m:.2f} %)')
+    print(f'D1 residual on {cal.points} samples: {cal.rmse_before_m * 1e3:.4f} -> '
+          f'{cal.rmse_after_m * 1e3:.4f} mm; Fisher condition number {cal.condition:.3g}')
+    return 0
+
+
+def _prior_entries(prior) -> dict[str, dict[str, float]]:
+    """Uncertainty-file entries of the prior's normal laws (others are left out)."""
+    from railgsa_ros.uq.distributions import Normal
+
+    return {n: {'dist': 'normal', 'mu': d.mu, 'sigma': d.sigma} for n, d in prior.items()
+            if isinstance(d, Normal)}
