@@ -17,15 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design, build_design
-from railgsa_ros.uncertainty.terms import SensorTerms
+from railgsa_ros.uncertainty.terms import sensor_terms
 from railgsa_ros.uncertainty.windows import Sensitivity, WindowAnalyzer
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.uq.uncertainty_file import table3
-from railgsa_ros.vehicle import VehicleParams, as_theta
+from railgsa_ros.vehicle import VehicleParams
 
 BLOCK = 256  # samples per quantile block: 2 MB at 1024 germ samples (cache-sized, 10 % faster)
 GEMM_ROWS = 16  # samples per BLAS call (16 x 9 x 1024 is below OpenBLAS's threading threshold)
@@ -160,11 +159,7 @@ class UncertaintyStream:
                                    dists if dists is not None else table3(vehicle))
         self.pipeline = InversionPipeline(self.config.inversion, self.design.theta,
                                           noise_variance)
-        inv = self.config.inversion
-        floor = None if inv.band == 'none' else NoiseFloor(
-            as_theta(vehicle), inv.band, inv.band_order, inv.rate_hz,
-            noise_variance if noise_variance is not None else inv.noise_std_mps2 ** 2)
-        self.terms = SensorTerms(self.config, None if floor is None else floor.sigma_m)
+        self.terms = sensor_terms(self.config, vehicle, noise_variance)
         self._windows = WindowAnalyzer(self.config, self.design, defer)
         self._quantiles = (self.config.lower_quantile, self.config.upper_quantile)
 

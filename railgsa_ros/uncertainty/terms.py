@@ -22,8 +22,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.uncertainty.config import UncertaintyConfig
+from railgsa_ros.vehicle import VehicleParams, as_theta
 
 NoiseStd = Callable[[np.ndarray], np.ndarray]  # speeds (K,) m/s -> sigma_u (K,) m
 
@@ -72,3 +74,16 @@ class SensorTerms:
     def reset(self) -> None:
         """Forget the carried sample (a restart of the stream)."""
         self._last = None
+
+
+def sensor_terms(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
+                 noise_variance: float | None) -> SensorTerms:
+    """The terms of a stream: sigma_u(v) of the nominal ``vehicle`` for the accelerometer
+    variance (m/s^2)^2 (None: ``noise_std_mps2``^2, the policy's fallback); no noise term
+    without a band (paper mode)."""
+    inv = config.inversion
+    if inv.band == 'none':
+        return SensorTerms(config, None)
+    variance = noise_variance if noise_variance is not None else inv.noise_std_mps2 ** 2
+    floor = NoiseFloor(as_theta(vehicle), inv.band, inv.band_order, inv.rate_hz, variance)
+    return SensorTerms(config, floor.sigma_m)
