@@ -114,7 +114,8 @@ class HeldSpeed:
 @dataclass(frozen=True)
 class Step:
     """Emitted samples (K,): IMU stamps (ns), chainage (m), nominal reconstruction u (m), speed
-    (m/s); with uncertain parameters the band of the same stamps and the bank outputs (P, K) m."""
+    (m/s); with uncertain parameters the band of the same stamps, the bank outputs (P, K) m and
+    the band's sensor std (K,) m."""
 
     stamps_ns: np.ndarray
     chainage_m: np.ndarray
@@ -122,6 +123,7 @@ class Step:
     speed_mps: np.ndarray
     band: Band | None = None
     bank_u_m: np.ndarray | None = None
+    sensor_std_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.stamps_ns.size)
@@ -186,7 +188,7 @@ class Driver:
             return Step(*nominal)
         if not np.array_equal(update.band.stamps_ns, nominal[0]):
             raise AssertionError('band and irregularity stamps differ')
-        return Step(*nominal, update.band, update.bank_u_m)
+        return Step(*nominal, update.band, update.bank_u_m, update.sensor_std_m)
 
 
 def _take(pending: list[tuple[Output, np.ndarray]], count: int) -> tuple[np.ndarray, ...]:

@@ -14,7 +14,7 @@ import pytest
 from railgsa_ros.bag import read_imu, write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
-from railgsa_ros.offline import HeldSpeed
+from railgsa_ros.offline import HeldSpeed, noise_variance
 from railgsa_ros.review.build import ReviewOptions, build_review, write_review
 from railgsa_ros.review.grid import GridBuilder
 from railgsa_ros.scenario import run_scenario
@@ -94,7 +94,9 @@ def test_the_band_is_the_uncertainty_core_band(simulated, review) -> None:
     speed = HeldSpeed(cfg.inversion.speed_mps, True)
     speed.add(stream.odom_stamps_ns, stream.speed_mps)
     band = offline_bands(stream.stamps_ns, stream.accel[:, 2], speed.at(stream.stamps_ns),
-                         stream.frame_ids, cfg, dists=table3())
+                         stream.frame_ids, cfg, dists=table3(),  # the review's noise rule:
+                         noise_variance=noise_variance(stream, cfg.inversion.accel_axis,
+                                                       cfg.inversion.noise_std_mps2))
     whole = GridBuilder()  # the whole band at once on the review's grid
     whole.push(band.chainage_m, band.mean_m, np.zeros(len(band)), band.lower_m, band.upper_m)
     expected, grid = whole.grid(), review.run.grid

@@ -21,10 +21,10 @@ from itertools import pairwise
 import numpy as np
 
 from railgsa_ros.review.limits import LEVELS, Limits
+from railgsa_ros.uncertainty.exceedance import exceedance_probability
 from railgsa_ros.uncertainty.surrogate import Design
 
 CONFIDENCES = ('certain', 'likely', 'possible')
-PROBABILITY_BLOCK = 256  # samples per surrogate evaluation (2 MB at 1024 germ samples)
 
 
 @dataclass(frozen=True)
@@ -76,19 +76,13 @@ _FIELDS = ('index', 'chainage', 'stamp', 'u', 'far', 'lvl_c', 'lvl_near', 'lvl_f
 _LIMITS = ('al', 'il', 'ial')
 
 
-def beyond_probability(design: Design, bank_u_m: np.ndarray, thresholds: np.ndarray
-                       ) -> np.ndarray:
-    """Probability (K, 3) that |u| passes each limit (K, 3) m, from bank outputs (P, K): the
-    fraction of the surrogate's germ samples (``design.germ_basis``, the samples the band's
-    quantiles come from) beyond it."""
-    coef = design.projector @ bank_u_m  # (T, K)
-    out = np.empty((coef.shape[1], 3))
-    for lo in range(0, out.shape[0], PROBABILITY_BLOCK):  # (block, S) values at a time
-        sl = slice(lo, lo + PROBABILITY_BLOCK)
-        values = np.abs(coef[0, sl, None] + coef[1:, sl].T @ design.germ_basis)
-        with np.errstate(invalid='ignore'):
-            out[sl] = np.mean(values[:, None, :] > thresholds[sl, :, None], axis=2)
-    return out
+def beyond_probability(design: Design, bank_u_m: np.ndarray, thresholds: np.ndarray,
+                       sensor_std_m: np.ndarray | None = None) -> np.ndarray:
+    """Probability (K, 3) that |u| passes each limit (K, 3) m, from bank outputs (P, K) and the
+    band's sensor std (K,) m: ``uncertainty.exceedance.exceedance_probability`` (the germ
+    samples the band's quantiles come from, with the sensor terms)."""
+    return np.stack([exceedance_probability(design, bank_u_m, thresholds[:, j], sensor_std_m)
+                     for j in range(thresholds.shape[1])], axis=1)
 
 
 class ExceedanceTracker:
@@ -109,7 +103,8 @@ class ExceedanceTracker:
     def push(self, chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
              stamps_ns: np.ndarray, lower_m: np.ndarray | None = None,
              upper_m: np.ndarray | None = None,
-             bank_u_m: np.ndarray | None = None) -> list[Exceedance]:
+             bank_u_m: np.ndarray | None = None,
+             sensor_std_m: np.ndarray | None = None) -> list[Exceedance]:
         """Samples (K,) (bank outputs (P, K) with a design); returns the exceedances that ended
         before them."""
         u = np.asarray(u_m, dtype=float)
@@ -126,7 +121,8 @@ class ExceedanceTracker:
                 **{k: thresholds[sel, j] for j, k in enumerate(_LIMITS)}}
         prob = np.full((sel.size, 3), np.nan)
         if self.design is not None and bank_u_m is not None and sel.size:
-            prob = beyond_probability(self.design, bank_u_m[:, sel], thresholds[sel])
+            prob = beyond_probability(self.design, bank_u_m[:, sel], thresholds[sel],
+                                      None if sensor_std_m is None else sensor_std_m[sel])
         cols.update({f'p_{k}': prob[:, j] for j, k in enumerate(_LIMITS)})
         self._seen += u.size
         held = 0 if self._open is None else self._open['index'].size

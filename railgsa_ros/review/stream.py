@@ -141,7 +141,8 @@ class _Summaries:
             lower, upper = band.lower_m, band.upper_m
         self.grid.push(c, step.u_m, step.speed_mps, lower, upper)
         self.exceedances += self.tracker.push(c, step.u_m, step.speed_mps, step.stamps_ns,
-                                              lower, upper, step.bank_u_m)
+                                              lower, upper, step.bank_u_m,
+                                              step.sensor_std_m)
         self.speeds.push(c, step.speed_mps)
         self.classes += np.bincount(speed_class(step.speed_mps) % self.classes.size,
                                     minlength=self.classes.size)

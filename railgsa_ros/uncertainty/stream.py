@@ -55,12 +55,14 @@ class Band:
 
 @dataclass(frozen=True)
 class Update:
-    """What one push/flush produced: the band samples, the closed windows' records and the bank
-    outputs (P, K) m of the band samples (one row per rule point)."""
+    """What one push/flush produced: the band samples, the closed windows' records, the bank
+    outputs (P, K) m of the band samples (one row per rule point) and their sensor std (K,) m
+    (``uncertainty.terms``)."""
 
     band: Band
     windows: list[Sensitivity]
     bank_u_m: np.ndarray | None = None
+    sensor_std_m: np.ndarray | None = None
 
 
 def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarray,
@@ -183,7 +185,8 @@ class UncertaintyStream:
     def flush(self) -> Update:
         """End of an offline stream (or a restart): emit every pending sample, close the window."""
         update = self._update(self.pipeline.flush())
-        return Update(update.band, update.windows + self._windows.close(), update.bank_u_m)
+        return Update(update.band, update.windows + self._windows.close(), update.bank_u_m,
+                      update.sensor_std_m)
 
     def analyze_deferred(self) -> list[Sensitivity]:
         """With ``defer``: the records of the windows closed so far, in order."""
@@ -195,7 +198,7 @@ class UncertaintyStream:
         lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m, sensor)
         band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper)
         return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m),
-                      out.u_m)
+                      out.u_m, sensor)
 
 
 def offline_bands(stamps_ns: np.ndarray, acc_z: np.ndarray,
