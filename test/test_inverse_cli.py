@@ -130,3 +130,45 @@ def test_bands_in_the_output_bag(bag, tmp_path):
             stamps[conn.topic].append(t)
     assert set(stamps) == {'/track/irregularity', '/track/irregularity_band'}
     assert stamps['/track/irregularity'] == stamps['/track/irregularity_band']
+
+
+@pytest.fixture(scope='module')
+def long_bag(tmp_path_factory):
+    run = run_scenario('german-low', 25.0, 40.0, 500.0, 'adxl355', seed=4,
+                       defects='dip@500:len=6:depth=8e-3', start_ns=1_700_000_000 * 10**9)
+    path = tmp_path_factory.mktemp('bags') / 'long'
+    write_run(path, run)
+    return path, run
+
+
+def test_grid_csv_is_the_profile_on_distance(long_bag, tmp_path):
+    """--grid 0.25: chainage multiples of 0.25 m, D1 on distance against the truth band-passed
+    the same way; t_s (when the wheel passed) increases; a custom band is accepted."""
+    from railgsa_ros.inverse.score import band_distance
+
+    path, run = long_bag
+    out = tmp_path / 'g.csv'
+    assert main(['invert', str(path), '--csv', str(out), '--grid', '0.25']) == 0
+    lines, data = read_csv(out)
+    assert lines[0].startswith('t_s,chainage_m,u_m')
+    chain, u = data[:, 1], data[:, 2]
+    assert np.allclose(np.round(chain / 0.25) * 0.25, chain, atol=1e-9)
+    assert np.all(np.diff(chain) > 0) and np.all(np.diff(data[:, 0]) > 0)
+    x = np.arange(run.chainage_m[0], run.chainage_m[-1], 0.25)
+    truth = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), 0.25)
+    here = chain + run.chainage_m[0]
+    ok = np.isfinite(u) & (here > x[0] + 100) & (here < x[-1] - 100)
+    assert ok.sum() > 1000
+    err = u[ok] - np.interp(here[ok], x, truth)
+    assert np.sqrt(np.mean(err ** 2)) < 0.05e-3
+    assert main(['invert', str(path), '--csv', str(tmp_path / 'c.csv'), '--grid', '0.25',
+                 '--band', '2:70']) == 0
+
+
+def test_bad_band_and_grid_exit_2(long_bag, tmp_path, capsys):
+    path, _ = long_bag
+    for extra in (['--band', 'd9'], ['--band', '70:2'], ['--grid', '0'],
+                  ['--grid', '2', '--band', 'd1'], ['--grid', '0.25', '--bands']):
+        assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), *extra]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and ('band' in err or 'grid' in err)

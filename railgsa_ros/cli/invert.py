@@ -37,8 +37,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     out.add_argument('--out', metavar='OUT.mcap', help='write /track/irregularity to a bag')
     p.add_argument('--method', choices=('spectral', 'feedback', 'kalman'),
                    help='inversion method (default: the params file, else spectral)')
-    p.add_argument('--band', choices=('d1', 'd2', 'none'),
-                   help='EN 13848 band (default: the params file, else d1)')
+    p.add_argument('--band', metavar='BAND',
+                   help='d1, d2, d3 (EN 13848), wide (1-200 m), LMIN:LMAX in m (e.g. 2:70) or '
+                   'none (default: the params file, else d1)')
+    p.add_argument('--grid', type=float, metavar='STEP_M',
+                   help='output on a fixed chainage step (m, e.g. 0.25), band-passed on '
+                   'distance: t_s is when the wheel passed the point')
     p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
     p.add_argument('--odom-topic', default='/odom', metavar='T',
@@ -124,16 +128,27 @@ def invert_bag(args: argparse.Namespace) -> tuple[object, object, Inputs]:
     """Run the pipeline over the bag: (Output of every accepted sample, pipeline, inputs)."""
     import numpy as np
 
+    from railgsa_ros.inverse.grid import grid_config
     from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 
     inp = load_inputs(args)
-    pipe = InversionPipeline(inp.config, inp.vehicle, inp.noise_variance)
+    pipe = InversionPipeline(grid_config(inp.config) if args.grid is not None else inp.config,
+                             inp.vehicle, inp.noise_variance)
     outs = [pipe.push(inp.stamps_ns[i:i + CHUNK], inp.acc_z[i:i + CHUNK],
                       inp.speed_mps[i:i + CHUNK], inp.frame_ids[i:i + CHUNK])
             for i in range(0, inp.stamps_ns.size, CHUNK)]
     outs.append(pipe.flush())
     return Output(*(np.concatenate([getattr(o, f) for o in outs]) for f in
                     ('stamps_ns', 'chainage_m', 'u_m'))), pipe, inp
+
+
+def on_grid(out: object, config: object, step_m: float) -> object:
+    """The output (of a pipeline with ``grid_config(config)``) on chainage multiples of step_m,
+    band-passed on distance with config's band (``inverse.grid.ChainageGrid``)."""
+    from railgsa_ros.inverse.grid import ChainageGrid, GridOutput
+
+    grid = ChainageGrid.for_config(config, step_m)
+    return GridOutput.concat([grid.push(out), grid.flush()])
 
 
 def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
@@ -209,7 +224,13 @@ def run(args: argparse.Namespace) -> int:
 
     refuse_overlap(args.csv or args.out, (args.bag, args.params, args.vehicle, args.uncertainty,
                                           args.uncertainty_params))
+    if args.grid is not None and args.bands:
+        from railgsa_ros.errors import ConfigError
+
+        raise ConfigError('--bands: the uncertainty band is per IMU sample; not with --grid')
     out, pipe, inp = invert_bag(args)
+    if args.grid is not None:
+        out = on_grid(out, inp.config, args.grid)
     band = bands_for(args, inp, out) if args.bands else None
     if args.csv:
         write_csv(args.csv, out, band, args.overwrite)
