@@ -14,13 +14,17 @@ from railgsa_ros.inverse.score import score
 from railgsa_ros.scenario import run_scenario
 
 
-@pytest.fixture(scope='module')
-def bag(tmp_path_factory):
-    run = run_scenario('german-low', 25.0, 8.0, 500.0, 'adxl355', seed=2,
-                       defects='dip@100:len=6:depth=8e-3', start_ns=1_700_000_000 * 10**9)
-    path = tmp_path_factory.mktemp('bags') / 'run'
+def _bag(tmp_path_factory, name, duration_s, seed, defects):
+    run = run_scenario('german-low', 25.0, duration_s, 500.0, 'adxl355', seed=seed,
+                       defects=defects, start_ns=1_700_000_000 * 10**9)
+    path = tmp_path_factory.mktemp('bags') / name
     write_run(path, run)
     return path, run
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory):
+    return _bag(tmp_path_factory, 'run', 8.0, 2, 'dip@100:len=6:depth=8e-3')
 
 
 def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
@@ -134,11 +138,7 @@ def test_bands_in_the_output_bag(bag, tmp_path):
 
 @pytest.fixture(scope='module')
 def long_bag(tmp_path_factory):
-    run = run_scenario('german-low', 25.0, 40.0, 500.0, 'adxl355', seed=4,
-                       defects='dip@500:len=6:depth=8e-3', start_ns=1_700_000_000 * 10**9)
-    path = tmp_path_factory.mktemp('bags') / 'long'
-    write_run(path, run)
-    return path, run
+    return _bag(tmp_path_factory, 'long', 40.0, 4, 'dip@500:len=6:depth=8e-3')
 
 
 def test_grid_csv_is_the_profile_on_distance(long_bag, tmp_path):
