@@ -94,3 +94,25 @@ def test_set_taps_at_switch_period_swaps_every_tap_at_once():
     second = fir.process(x[n_sw:])
     assert np.allclose(first[0], np.convolve(x, old[0])[:n_sw], atol=1e-11)
     assert np.allclose(second[0], np.convolve(x, new[0])[n_sw:12000], atol=1e-11)
+
+
+@pytest.mark.parametrize('speed, expected', [(8.0, 'invalid'), (18.0, 'degraded'),
+                                             (30.0, 'valid')])
+def test_d3_at_low_speed_is_flagged_by_the_noise_floor(speed, expected):
+    """D3 (70-200 m) on the ADXL355 noise: the policy's noise floor (sigma_u through 1/G and
+    the band, noise_limit_m 0.1 mm) makes every output INVALID below ~14 m/s, DEGRADED below
+    ~22 m/s; the threshold is checked against the integral itself."""
+    from railgsa_ros.imu import accel_covariance, imu_spec
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.observability import band_noise_std
+    from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
+    from railgsa_ros.vehicle import VehicleParams
+
+    var = accel_covariance(imu_spec('adxl355'))
+    cfg = InversionConfig(band='d3', speed_mps=speed)
+    sigma = band_noise_std(VehicleParams().as_array(), 'd3', 2, 1000.0, var, [speed])[0]
+    assert (sigma > cfg.noise_limit_m) == (expected == 'invalid')
+    policy = InputPolicy(cfg, options=PolicyOptions(use_odom=False), noise_variance=var)
+    assert (speed < policy.v_invalid) == (expected == 'invalid')
+    assert (policy.v_invalid <= speed < policy.v_degraded) == (expected == 'degraded')
+    assert 12.0 < policy.v_invalid < 16.0 and 19.0 < policy.v_degraded < 25.0
