@@ -157,6 +157,7 @@ class RunStream:
         if not math.isfinite(self.start_m):
             raise ConfigError(f'start chainage: must be finite, got {start_m!r} m')
         self.theta = _vehicle(vehicle)
+        self.imu_seed = imu_seed
         self.bank = vehicle_bank(self.theta, 1.0 / self.fs_sim)
         self.mems = MemsStream(spec, self.fs_sim, imu_seed)
         step = math.lcm(self.bank.block, self.q)
@@ -171,6 +172,9 @@ class RunStream:
         self.start_ns = np.int64(start_ns)
 
     def __iter__(self) -> Iterator[Run]:
+        """The chunks, from the start (each iteration is the whole run again)."""
+        if self.mems.n_in:  # iterated before: start the sensor again
+            self.mems = MemsStream(self.spec, self.fs_sim, self.imu_seed)
         n_sim = self.n_out * self.q
         dt = 1.0 / self.fs_sim
         travel, v_last = np.zeros(1), None

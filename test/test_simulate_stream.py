@@ -56,6 +56,8 @@ def test_chunks_equal_the_one_shot_simulation(case):
     chunks = list(stream)
     assert len(chunks) > 8
     streamed = Run.concat(chunks)
+    again = Run.concat(list(stream))  # a second iteration is the same run again
+    np.testing.assert_array_equal(again.accel, streamed.accel)
     # the one-shot RunStream (what run_scenario returns) is bit-identical
     whole = run_scenario(profile, speed, duration, rate, sensor, seed=5, defects=defects,
                          start_m=250.0)
