@@ -10,8 +10,9 @@ builds vertices from an origin, a heading and sections of constant curvature, wi
 enough for a sagitta below 1 cm (``CHORD_SAGITTA_M``).
 
 ``GnssSim`` turns a simulated run (stamps, chainage) into ``sensor_msgs/msg/NavSatFix`` fixes at
-a slower rate, with white east/north/up noise of given standard deviations and that covariance
-(diagonal known). Angles in degrees, lengths in metres.
+a slower rate, with east/north/up noise of given standard deviations (white, or first-order
+Gauss-Markov with a correlation time) and that covariance (diagonal known). Angles in degrees,
+lengths in metres.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+from scipy import signal
 from scipy.spatial import cKDTree
 
 from railgsa_ros.errors import ConfigError
@@ -219,19 +221,21 @@ def default_line(length_m: float, start_m: float = 0.0, line_id: str = 'sim-1') 
 
 @dataclass(frozen=True)
 class GnssSpec:
-    """Simulated GNSS receiver: fix rate (Hz), white noise std east/north and up (m)."""
+    """Simulated GNSS receiver: fix rate (Hz), noise std east/north and up (m), and the noise's
+    correlation time (s; 0 = white, > 0 = first-order Gauss-Markov, as multipath makes it)."""
 
     rate_hz: float = 5.0
     sigma_h_m: float = 2.0
     sigma_v_m: float = 4.0
+    correlation_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 100):
             raise ConfigError(f'gnss rate: expected 0-100 Hz, got {self.rate_hz!r}')
-        for name in ('sigma_h_m', 'sigma_v_m'):
+        for name in ('sigma_h_m', 'sigma_v_m', 'correlation_s'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f'gnss {name}: must be a finite number >= 0 m, got {value!r}')
+                raise ConfigError(f'gnss {name}: must be a finite number >= 0, got {value!r}')
 
 
 @dataclass(frozen=True)
@@ -253,6 +257,10 @@ class GnssSim:
         self.spec = spec
         self.ticks = TickSampler(spec.rate_hz)
         self.rng = np.random.default_rng(seed)
+        # AR(1) per axis at the fix rate: x[k] = phi x[k-1] + sqrt(1 - phi^2) w[k], stationary
+        self.phi = math.exp(-1.0 / (spec.rate_hz * spec.correlation_s)) \
+            if spec.correlation_s > 0 else 0.0
+        self._last = self.rng.standard_normal(3)  # the state before the first fix
 
     @property
     def covariance(self) -> np.ndarray:
@@ -266,6 +274,10 @@ class GnssSim:
         chainage = np.asarray(chainage_m, dtype=float)[pick]
         lat, lon = self.line.position(chainage)
         sigma = np.array([self.spec.sigma_h_m, self.spec.sigma_h_m, self.spec.sigma_v_m])
-        noise = self.rng.standard_normal((pick.size, 3)) * sigma
-        lat, lon, alt = enu_to_geodetic(noise, lat, lon)
+        unit = self.rng.standard_normal((pick.size, 3))
+        if self.phi and pick.size:
+            unit, _ = signal.lfilter([math.sqrt(1 - self.phi ** 2)], [1.0, -self.phi], unit,
+                                     axis=0, zi=self.phi * self._last[None, :])
+            self._last = unit[-1]
+        lat, lon, alt = enu_to_geodetic(unit * sigma, lat, lon)
         return GnssFixes(np.asarray(stamps_ns, np.int64)[pick], lat, lon, alt, chainage)

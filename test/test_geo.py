@@ -144,3 +144,23 @@ def test_simulate_gnss_and_odometry_error_in_the_bag(tmp_path: Path):
     along, _ = default_line(2200.0).locate(lat, lon)
     expected = 1200.0 + 25.0 * (stamps - stamps[0]) / 1e9  # the true chainage at the fix
     assert np.sqrt(np.mean((along - expected) ** 2)) == pytest.approx(1.5, rel=0.4)
+
+
+def test_correlated_gnss_noise_has_its_correlation_and_variance():
+    line = default_line(30_000.0)
+    spec = GnssSpec(rate_hz=2.0, sigma_h_m=3.0, sigma_v_m=5.0, correlation_s=5.0)
+    sim = GnssSim(line, spec, seed=8)
+    t = np.arange(0.0, 12_000.0, 0.01)  # 100 Hz samples at 2 m/s: 24000 fixes, 9 chunks
+    stamps = np.int64(10**9) + np.round(t * 1e9).astype(np.int64)
+    fixes = [sim.take(stamps[lo:lo + 140_000], 2.0 * t[lo:lo + 140_000])
+             for lo in range(0, t.size, 140_000)]
+    lat = np.concatenate([f.lat_deg for f in fixes])
+    lon = np.concatenate([f.lon_deg for f in fixes])
+    alt = np.concatenate([f.alt_m for f in fixes])
+    along, cross = line.locate(lat, lon)
+    err = along - np.concatenate([f.chainage_m for f in fixes])
+    phi = np.exp(-1 / (2.0 * 5.0))  # lag-1 correlation at 2 Hz with 5 s correlation time
+    n_eff = err.size * (1 - phi) / (1 + phi)  # effective independent samples of an AR(1)
+    for e, sigma in ((err, 3.0), (cross, 3.0), (alt, 5.0)):
+        assert np.corrcoef(e[1:], e[:-1])[0, 1] == pytest.approx(phi, abs=4 / np.sqrt(n_eff))
+        assert e.std() == pytest.approx(sigma, rel=4 / np.sqrt(2 * n_eff))

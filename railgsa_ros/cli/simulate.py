@@ -78,6 +78,9 @@ def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
                    help='GNSS fix rate in Hz (default 5)')
     p.add_argument('--gnss-noise', type=float, default=2.0, metavar='M',
                    help='GNSS horizontal noise std in m; vertical twice that (default 2)')
+    p.add_argument('--gnss-corr', type=float, default=0.0, metavar='S',
+                   help='correlation time of the GNSS noise in s (first-order Gauss-Markov, as '
+                        'multipath makes it; default 0 = white)')
 
 
 def check_positive(**values: float | None) -> None:
@@ -115,6 +118,7 @@ class SimOptions:
     gnss: bool = False
     gnss_rate: float = 5.0
     gnss_noise: float = 2.0
+    gnss_corr: float = 0.0
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> SimOptions:
@@ -168,7 +172,7 @@ class SimOptions:
                               f'at {stream.start_m:g} m')
         check_positive(gnss_rate=self.gnss_rate)
         reach = stream.start_m + float(stream.max_speed_mps) * stream.duration_s
-        spec = GnssSpec(self.gnss_rate, self.gnss_noise, 2 * self.gnss_noise)
+        spec = GnssSpec(self.gnss_rate, self.gnss_noise, 2 * self.gnss_noise, self.gnss_corr)
         return GnssSim(default_line(reach), spec, seed=[self.seed, 0x6E55])
 
 

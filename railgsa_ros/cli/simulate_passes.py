@@ -128,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
 
     options = SimOptions(profile=args.profile, rate=args.rate, sensor=args.sensor,
                          storage=args.storage, line_seed=args.seed, gnss_rate=args.gnss_rate,
-                         gnss_noise=args.gnss_noise, start_time=DEFAULT_START_S)
+                         gnss_noise=args.gnss_noise, gnss_corr=args.gnss_corr,
+                         start_time=DEFAULT_START_S)
     bags = write_series(args.out, series_from_args(args), options, args.overwrite)
     for bag in bags:
         truth = json.loads(bag.with_name(f'{bag.name}.truth.json').read_text())
