@@ -165,6 +165,20 @@ def test_grid_csv_is_the_profile_on_distance(long_bag, tmp_path):
                  '--band', '2:70']) == 0
 
 
+def test_grid_bag_has_the_grid_topic(long_bag, tmp_path):
+    path, _ = long_bag
+    csv, out = tmp_path / 'g.csv', tmp_path / 'g.mcap'
+    assert main(['invert', str(path), '--csv', str(csv), '--grid', '0.5']) == 0
+    assert main(['invert', str(path), '--out', str(out), '--grid', '0.5']) == 0
+    _, data = read_csv(csv)
+    with AnyReader([out]) as reader:
+        conns = [c for c in reader.connections if c.topic == '/track/irregularity_grid']
+        assert len(conns) == 1 and conns[0].msgcount == data.shape[0]
+        x = [reader.deserialize(raw, c.msgtype).point.x
+             for c, _, raw in reader.messages(connections=conns)]
+    np.testing.assert_allclose(x, data[:, 1], atol=1e-4)
+
+
 def test_bad_band_and_grid_exit_2(long_bag, tmp_path, capsys):
     path, _ = long_bag
     for extra in (['--band', 'd9'], ['--band', '70:2'], ['--grid', '0'],

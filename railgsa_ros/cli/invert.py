@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
 CHUNK = 65536  # IMU samples per pipeline call
 OUT_TOPIC = '/track/irregularity'
+GRID_TOPIC = '/track/irregularity_grid'  # --grid: the profile at a fixed chainage step
 BAND_TOPIC = '/track/irregularity_band'
 
 
@@ -42,7 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    'none (default: the params file, else d1)')
     p.add_argument('--grid', type=float, metavar='STEP_M',
                    help='output on a fixed chainage step (m, e.g. 0.25), band-passed on '
-                   'distance: t_s is when the wheel passed the point')
+                   'distance: t_s is when the wheel passed the point (bag: '
+                   '/track/irregularity_grid)')
     p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
     p.add_argument('--odom-topic', default='/odom', metavar='T',
@@ -195,7 +197,8 @@ def write_csv(path: str | Path, out: object, band: object | None, overwrite: boo
         tmp.write_text('\n'.join([header, *body]) + '\n', encoding='utf-8')
 
 
-def write_bag(path: str | Path, out: object, band: object | None, overwrite: bool) -> None:
+def write_bag(path: str | Path, out: object, band: object | None, overwrite: bool,
+              topic: str = OUT_TOPIC) -> None:
     """The nodes' topics, log time = header stamp = IMU stamp: ``/track/irregularity``
     (PointStamped: x chainage, z irregularity) and with a band ``/track/irregularity_band``
     (Vector3Stamped: x lower, y mean, z upper)."""
@@ -207,7 +210,7 @@ def write_bag(path: str | Path, out: object, band: object | None, overwrite: boo
 
     values = np.zeros((out.stamps_ns.size, 3))
     values[:, 0], values[:, 2] = out.chainage_m, out.u_m
-    topics = {OUT_TOPIC: (POINT_STAMPED, values)}
+    topics = {topic: (POINT_STAMPED, values)}
     if band is not None:
         topics[BAND_TOPIC] = (VECTOR3_STAMPED,
                               np.column_stack([band.lower_m, band.mean_m, band.upper_m]))
@@ -235,7 +238,8 @@ def run(args: argparse.Namespace) -> int:
     if args.csv:
         write_csv(args.csv, out, band, args.overwrite)
     else:
-        write_bag(args.out, out, band, args.overwrite)
+        write_bag(args.out, out, band, args.overwrite,
+                  GRID_TOPIC if args.grid is not None else OUT_TOPIC)
     counts = ', '.join(f'{k} {v}' for k, v in sorted(pipe.counters.items()))
     print(f'{len(out)} samples ({pipe.config.method}, band {pipe.config.band}, delay '
           f'{pipe.delay_samples} samples); {counts}', file=sys.stderr)
