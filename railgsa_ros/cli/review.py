@@ -43,6 +43,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='nominal reconstruction only: no band, sensitivities or histogram')
     p.add_argument('--limit-end', choices=('lower', 'upper'), default='lower',
                    help='end of the EN 13848-5 AL/IL ranges to apply (default lower: strictest)')
+    p.add_argument('--min-probability', type=float, default=0.0, metavar='P',
+                   help='list only exceedances whose probability of passing the limit (from '
+                        'the uncertainty band) is at least P, 0-1 (default 0: all)')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
     p.add_argument('--odom-topic', default='/odom', metavar='T', help='default /odom')
     add_location_options(p)
@@ -139,7 +142,17 @@ def build_options(args: argparse.Namespace) -> Any:
                          Path(args.truth) if args.truth else None, args.limit_end,
                          imu_topic=args.imu_topic, odom_topic=args.odom_topic,
                          rate_from_bag='rate_hz' not in params, gnss_topic=args.gnss_topic,
-                         reference=reference(args, params))
+                         reference=reference(args, params),
+                         min_probability=min_probability(args.min_probability))
+
+
+def min_probability(value: float) -> float:
+    """--min-probability checked: a probability in [0, 1]."""
+    from railgsa_ros.errors import ConfigError
+
+    if not 0.0 <= value <= 1.0:
+        raise ConfigError(f'--min-probability: expected a probability in [0, 1], got {value!r}')
+    return value
 
 
 def run(args: argparse.Namespace) -> int:

@@ -52,6 +52,7 @@ class ReviewOptions:
     rate_from_bag: bool = True  # replace config.inversion.rate_hz by the bag's median rate
     gnss_topic: str = '/gnss/fix'
     reference: Reference = field(default_factory=Reference)
+    min_probability: float = 0.0  # exceedances listed only when P(beyond the limit) >= this
 
     @property
     def source(self) -> Source:
@@ -118,7 +119,8 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     if run.worst is not None and run.design is not None:
         worst = worst_surrogate(run.design, run.worst, cfg)
     timings['analyse'] = time.perf_counter() - mark
-    return Review(options, cfg, run, run.health, limits, run.exceedances, sections,
+    listed = [e for e in run.exceedances if not e.probability < options.min_probability]
+    return Review(options, cfg, run, run.health, limits, listed, sections,
                   truth_sections, comparison, worst, timings)
 
 

@@ -1,0 +1,55 @@
+"""The review's exceedance list by probability (issue 12 item 5): with the paper's Table 3 the
+band-edge list holds false alarms; ``--min-probability`` keeps the real exceedances only."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from railgsa_ros.bag import write_run
+from railgsa_ros.cli.main import main
+from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.review.build import ReviewOptions, build_review
+from railgsa_ros.scenario import run_scenario
+from railgsa_ros.uncertainty import UncertaintyConfig
+from railgsa_ros.uq.uncertainty_file import table3
+
+SPEED = 30.0  # 108 km/h: AL 8 mm (lower end)
+DEFECTS = 'dip@300:len=6:depth=14e-3,dip@700:len=6:depth=6e-3'
+CONFIG = UncertaintyConfig(qoi='')
+
+
+@pytest.fixture(scope='module')
+def simulated(tmp_path_factory: pytest.TempPathFactory):
+    run = run_scenario('german-high', SPEED, 1000.0 / SPEED, None, 'bmi088', 4, defects=DEFECTS)
+    return write_run(tmp_path_factory.mktemp('prob') / 'run', run), run
+
+
+def _truth_passes(run, e) -> bool:
+    x = np.arange(0.0, run.chainage_m[-1], 0.25)
+    u = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), 0.25)
+    near = (x >= e.start_m - 1.0) & (x <= e.end_m + 1.0)
+    return bool(np.max(np.abs(u[near])) > e.limit_m)
+
+
+def test_min_probability_keeps_the_real_exceedances_only(simulated):
+    bag, run = simulated
+    every = build_review(ReviewOptions(bag, CONFIG, dists=table3()))
+    kept = build_review(ReviewOptions(bag, CONFIG, dists=table3(), min_probability=0.5))
+    assert all(0.0 <= e.probability <= 1.0 for e in every.exceedances)
+    assert {e.start_m for e in kept.exceedances} <= {e.start_m for e in every.exceedances}
+    real = [e for e in every.exceedances if _truth_passes(run, e)]
+    assert any(abs(e.peak_m - 303.0) < 8 for e in real)  # the 14 mm dip
+    assert len(every.exceedances) > len(real)  # band-edge false alarms with Table 3
+    assert all(_truth_passes(run, e) for e in kept.exceedances)  # no false alarm left
+    assert {e.start_m for e in kept.exceedances} == {e.start_m for e in real}  # no miss
+
+
+def test_min_probability_outside_0_1_is_refused(simulated, tmp_path: Path, capsys):
+    bag, _ = simulated
+    assert main(['review', str(bag), '--out', str(tmp_path / 'r'), '--min-probability',
+                 '1.5']) == 2
+    assert '--min-probability' in capsys.readouterr().err
+    assert not (tmp_path / 'r').exists()
