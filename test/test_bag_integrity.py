@@ -228,3 +228,30 @@ def test_reader_counts_and_skips_malformed_messages(tmp_path, capsys, storage) -
     err = capsys.readouterr().err
     assert err.startswith('warning: ') and 'malformed sensor_msgs/msg/Imu' in err, err
     assert len(out.read_text().splitlines()) - 1 == good.sum()
+
+
+def test_recover_counts_a_finished_file_without_statistics(tmp_path, capsys) -> None:
+    """Another writer's finished file without summary statistics is counted message by
+    message into metadata.yaml next to the recovered one."""
+    from mcap.writer import CompressionType, Writer
+
+    from railgsa_ros.playback.recording import message_definition
+
+    stamps, _, messages = imu_messages(2500)
+    bag = tmp_path / 'rec'
+    record(bag, messages[:2000], stamps[:2000], compress=True)  # unfinished: 1001 flushed
+    with (bag / 'rec_1.mcap').open('wb') as stream:
+        writer = Writer(stream, compression=CompressionType.NONE, use_statistics=False)
+        writer.start(profile='ros2')
+        schema = writer.register_schema(IMU.msgtype, 'ros2msg',
+                                        message_definition(IMU.msgtype).encode())
+        channel = writer.register_channel('/imu/data', 'cdr', schema)
+        for stamp, data in zip(stamps[2000:], messages[2000:], strict=True):
+            writer.add_message(channel, int(stamp), data, int(stamp))
+        writer.finish()
+    assert main(['recover', str(bag)]) == 0
+    assert capsys.readouterr().out.splitlines() == ['rec_0.mcap: recovered, 1001 messages',
+                                                    'rec_1.mcap: finished, 500 messages']
+    with AnyReader([bag]) as reader:
+        assert reader.message_count == 1501
+        assert [bytes(r) for _, _, r in reader.messages()] == messages[:1001] + messages[2000:]

@@ -191,30 +191,55 @@ def _write(stream: object, salvage: _Salvage) -> None:
     writer.finish()
 
 
-def _message_count(file: Path) -> int:
-    """Messages of a finished MCAP file (its summary statistics)."""
+@dataclass
+class _Contents:
+    """What a finished MCAP file holds: channels, schemas, messages per channel, log span."""
+
+    channels: dict[int, Channel]
+    schemas: dict[int, Schema]
+    counts: dict[int, int]
+    start_ns: int
+    end_ns: int
+
+
+def _contents(file: Path) -> _Contents:
+    """The summary of a finished MCAP file; counted message by message when it has no
+    statistics (some writers leave them out)."""
     with file.open('rb') as stream:
-        summary = make_reader(stream).get_summary()
-    return summary.statistics.message_count if summary and summary.statistics else 0
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        if summary is None:
+            raise InputError(f'{file}: an MCAP file without a summary')
+        stats = summary.statistics
+        if stats is not None:
+            return _Contents(summary.channels, summary.schemas,
+                             dict(stats.channel_message_counts), stats.message_start_time,
+                             stats.message_end_time)
+        counts: dict[int, int] = {}
+        times = []
+        for _, channel, message in reader.iter_messages():
+            counts[channel.id] = counts.get(channel.id, 0) + 1
+            times.append(message.log_time)
+    return _Contents(summary.channels, summary.schemas, counts, min(times, default=0),
+                     max(times, default=0))
+
+
+def _message_count(file: Path) -> int:
+    """Messages of a finished MCAP file."""
+    return sum(_contents(file).counts.values())
 
 
 def _segment(file: Path, topics: dict[str, tuple[str, list, str, int]]) -> Segment:
     """The metadata of one (finished or recovered) file; adds its topics' counts to
     ``topics`` (name -> type, offered QoS, type hash, count)."""
-    with file.open('rb') as stream:
-        summary = make_reader(stream).get_summary()
-    if summary is None or summary.statistics is None:
-        raise InputError(f'{file}: an MCAP file without summary statistics')
-    stats = summary.statistics
-    for cid, channel in summary.channels.items():
-        schema = summary.schemas.get(channel.schema_id)
+    found = _contents(file)
+    for cid, channel in found.channels.items():
+        schema = found.schemas.get(channel.schema_id)
         msgtype, qos, type_hash, count = topics.get(channel.topic, (
             schema.name if schema else '', _qos(channel), channel.metadata.get(
                 'topic_type_hash', ''), 0))
-        topics[channel.topic] = (msgtype, qos, type_hash,
-                                 count + stats.channel_message_counts.get(cid, 0))
-    return Segment(file.name, stats.message_count, stats.message_start_time,
-                   stats.message_end_time)
+        topics[channel.topic] = (msgtype, qos, type_hash, count + found.counts.get(cid, 0))
+    return Segment(file.name, sum(found.counts.values()), found.start_ns, found.end_ns)
 
 
 def _qos(channel: Channel) -> list:
