@@ -157,7 +157,7 @@ class PassPlan:
 
     index: int  # 0-based
     start_time_s: float  # stamp of the first sample, s since the epoch
-    days: float  # since the first pass
+    days: float  # since the first pass's start (fractional: the stamps' time)
     start_m: float
     speed_profile: str
     duration_s: float
@@ -206,9 +206,11 @@ class PassPlan:
 
 def _spec_token(d: Defect) -> str:
     """A Defect back as a spec token (full precision)."""
+    start, length = float(d.start), float(d.length)
     if d.kind == 'corrugation':
-        return f'corrugation@{d.start!r}:len={d.length!r}:wl={d.wavelength!r}:amp={d.amplitude!r}'
-    return f'{d.kind}@{d.start!r}:len={d.length!r}:depth={d.depth!r}'
+        return (f'corrugation@{start!r}:len={length!r}:wl={float(d.wavelength)!r}:'
+                f'amp={float(d.amplitude)!r}')
+    return f'{d.kind}@{start!r}:len={length!r}:depth={float(d.depth)!r}'
 
 
 def _speed_profile(distance_m: float, v: float, stop_at_m: float | None) -> str:
@@ -248,10 +250,13 @@ def plan_series(spec: SeriesSpec) -> list[PassPlan]:
     lo, hi = spec.section_m
     base = spec.first_date.timestamp()
     theta0 = spec.vehicle.as_array()
+    # every pass on its day, between 05:00 and 20:00 UTC
+    starts = base + (np.arange(spec.n_passes) * spec.days_between
+                     + rng.uniform(5, 20, spec.n_passes) / 24.0) * DAY_S
     plans = []
     for i in range(spec.n_passes):
-        days = i * spec.days_between
-        start_time = base + days * DAY_S + float(rng.uniform(5, 20)) * 3600.0  # 05:00-20:00
+        start_time = float(starts[i])
+        days = float(starts[i] - starts[0]) / DAY_S  # exact: the defects grow with the stamps
         start = max(0.0, lo - float(rng.uniform(0.0, spec.start_spread_m)))
         v = float(rng.uniform(*spec.speed_range_mps))
         end = hi + float(rng.uniform(20.0, 100.0))  # run on past the section
