@@ -3,8 +3,11 @@
 The reference is the line's profile on the common grid (its first pass, later the fused
 profile). Alignment by cross-correlation of the band-filtered profiles, in two steps:
 
-1. coarse: one long opening stretch of the pass (``COARSE_M``) against the whole reference (or a
-   prior's search range), normalised cross-correlation over every lag (``masked_ncc``);
+1. coarse: one long stretch of the pass (``COARSE_M``) against the whole reference, or within a
+   GNSS prior's search range, by normalised cross-correlation over every lag (``masked_ncc``).
+   With a GNSS prior the stretch is the one the prior puts on the reference; without, the
+   pass's start and up to ``COARSE_TRIES`` - 1 later stretches are tried (a pass may begin off
+   the reference);
 2. tracking: the pass in windows of ``WINDOW_M``, each resampled with the current estimate and
    searched within +-``FINE_M`` of where the fit so far puts it; the peak lag is refined to a
    fraction of a cell by a parabola through the three best lags. A straight line fitted through
@@ -24,6 +27,7 @@ import numpy as np
 from scipy.signal import correlate
 
 COARSE_M = 400.0
+COARSE_TRIES = 4  # coarse stretches tried without a prior placing the pass
 WINDOW_M = 100.0
 FINE_M = 4.0
 MIN_NCC = 0.6
@@ -153,6 +157,22 @@ def _match(ref: Reference, s: np.ndarray, u: np.ndarray, ok: np.ndarray, offset:
     return (_peak(ncc) - lags) * dx, float(np.max(ncc))
 
 
+def _coarse_starts(ref: Reference, s_m: np.ndarray, n0: int, prior: Alignment,
+                   placed: bool) -> list[int]:
+    """First cells of the stretches to try for the coarse match: with a placing prior (GNSS),
+    the one that overlaps the reference most where the prior puts it; otherwise the start of
+    the pass and up to COARSE_TRIES - 1 later stretches (a pass may begin off the reference)."""
+    last = s_m.size - n0
+    if placed:
+        lo, hi = ref.first_cell * ref.dx, (ref.first_cell + ref.u_m.size) * ref.dx
+        x = np.sort(prior.position(s_m[[0, n0 - 1]]))
+        starts = np.linspace(0, last, max(min(last // max(n0 // 4, 1), 64), 1) + 1).astype(int)
+        shifted = prior.scale * (s_m[starts] - s_m[0])
+        overlap = np.minimum(x[1] + shifted, hi) - np.maximum(x[0] + shifted, lo)
+        return [int(starts[np.argmax(overlap)])]
+    return sorted({int(j) for j in np.linspace(0, last, COARSE_TRIES)})
+
+
 def _fit(s_c: np.ndarray, x_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares line x = a + b s: coefficients (a, b) and their covariance (2, 2) from the
     residual scatter (numpy.polynomial; at least three points)."""
@@ -172,13 +192,22 @@ def xcorr_align(ref: Reference, s_m: np.ndarray, u_m: np.ndarray, valid: np.ndar
     step = float(np.median(np.diff(s_m)))
     offset, scale = prior.offset_m, prior.scale
     n0 = min(s_m.size, int(COARSE_M / step))
-    if search_m is None:  # the whole reference: centre the stretch on it, search its length
-        span = (ref.u_m.size + n0) * dx
-        low = min(scale * s_m[0], scale * s_m[n0 - 1])
-        offset = ref.first_cell * dx - n0 * dx + span / 2 - low
-        search_m = span / 2
-    coarse = _match(ref, s_m[:n0], u_m[:n0], valid[:n0], offset, scale, search_m)
-    if coarse is None or coarse[1] < MIN_NCC:
+    coarse = None
+    for j in _coarse_starts(ref, s_m, n0, prior, search_m is not None):
+        sl = slice(j, j + n0)
+        if search_m is None:  # the whole reference: centre the stretch on it, search its length
+            span = (ref.u_m.size + n0) * dx
+            low = min(scale * s_m[j], scale * s_m[j + n0 - 1])
+            hit = _match(ref, s_m[sl], u_m[sl], valid[sl],
+                         ref.first_cell * dx - n0 * dx + span / 2 - low, scale, span / 2)
+            if hit is not None:
+                hit = (hit[0] + ref.first_cell * dx - n0 * dx + span / 2 - low - offset, hit[1])
+        else:
+            hit = _match(ref, s_m[sl], u_m[sl], valid[sl], offset, scale, search_m)
+        if hit is not None and hit[1] >= MIN_NCC:
+            coarse = hit
+            break
+    if coarse is None:
         return None
     offset += coarse[0]
     n_win = max(int(WINDOW_M / step), 8)

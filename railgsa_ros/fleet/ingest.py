@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
 
@@ -99,10 +99,11 @@ def _pass_row(con: duckdb.DuckDBPyConnection, bag: str, options: PassOptions, st
 
 
 def _align(ref: Reference | None, result: PassResult, geometry: object | None,
-           frame: str | None) -> Alignment | None:
+           frame: str | None, frame_cov: np.ndarray | None) -> Alignment | None:
     """GNSS (when the pass has fixes, the line a geometry and a GNSS frame), refined by
     cross-correlation against the reference (searched around the GNSS position, or over the
-    whole reference without it); the GNSS alignment alone when the profiles do not match."""
+    whole reference without it; ``frame_cov``, the covariance of the reference pass's own
+    alignment, is added); the GNSS alignment alone when the profiles do not match."""
     o = result.options
     gnss = None
     if geometry is not None and len(result.fixes) and frame in (None, 'gnss'):
@@ -111,7 +112,11 @@ def _align(ref: Reference | None, result: PassResult, geometry: object | None,
     if ref is None:
         return prior
     search = None if gnss is None else float(4 * gnss.position_sd(result.s_m).max() + 10.0)
-    return xcorr_align(ref, result.s_m, result.u_m, result.valid, prior, search) or gnss
+    found = xcorr_align(ref, result.s_m, result.u_m, result.valid, prior, search)
+    if found is None or frame_cov is None:
+        return found or gnss
+    # placed in the frame of the line's reference pass: its own uncertainty comes along
+    return replace(found, cov=found.cov + frame_cov)
 
 
 def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult,
@@ -119,9 +124,13 @@ def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult,
     """Align one pass against its line, write its rows; status 'ok' or 'unaligned'."""
     o, dx = result.options, result.options.dx_m
     ref = _reference(con, o.line, o.track, dx)
-    row = con.execute('SELECT frame FROM lines WHERE line = ? AND track = ?',
-                      [o.line, o.track]).fetchone()
-    alignment = _align(ref, result, geometry, row[0] if row else None)
+    row = con.execute("""SELECT l.frame, a.offset_sd_m, a.scale_sd, a.cov_offset_scale
+                         FROM lines l JOIN alignments a ON a.pass_id = l.reference_pass
+                         WHERE l.line = ? AND l.track = ?""", [o.line, o.track]).fetchone()
+    frame_cov = None
+    if row is not None and row[0] == 'gnss':
+        frame_cov = np.array([[row[1] ** 2, row[3]], [row[3], row[2] ** 2]])
+    alignment = _align(ref, result, geometry, row[0] if row else None, frame_cov)
     if alignment is None:
         pid = _pass_row(con, result.bag, o, 'unaligned',
                         "no stretch matches the line's profile (correlation below 0.6)", result)
