@@ -79,13 +79,29 @@ def pass_options(args: argparse.Namespace) -> object:
 
     if args.workers < 1:
         raise ConfigError(f'--workers: must be at least 1, got {args.workers}')
-    review = build_options(argparse.Namespace(**vars(args), bag='', truth=None, uncertainty=None,
-                                              no_uncertainty=True, limit_end='lower'))
+    review = build_options(review_namespace(args))
     where = review.reference  # options, else the params file's location keys
     return PassOptions(review.config, review.vehicle, where.line or DEFAULT_LINE,
                        where.track or DEFAULT_TRACK, where.direction, where.km_origin,
                        args.vehicle_id, args.imu_topic, args.odom_topic, args.gnss_topic,
                        rate_from_bag=review.rate_from_bag)
+
+
+SHARED = ('params', 'vehicle', 'method', 'band', 'imu_topic', 'odom_topic', 'gnss_topic', 'line',
+          'track', 'direction', 'km_origin')  # options that mean the same as in railgsa review
+
+
+def review_namespace(args: argparse.Namespace) -> argparse.Namespace:
+    """``railgsa review BAG --out DIR --no-uncertainty`` as its own parser reads it (every review
+    option at its default), with the options ``ingest`` shares with it taken from ``args``."""
+    from railgsa_ros.cli import review
+
+    parser = argparse.ArgumentParser()
+    review.register(parser.add_subparsers())
+    namespace = parser.parse_args(['review', 'BAG', '--out', 'DIR', '--no-uncertainty'])
+    for name in SHARED:
+        setattr(namespace, name, getattr(args, name))
+    return namespace
 
 
 def run_ingest(args: argparse.Namespace) -> int:
