@@ -174,3 +174,30 @@ def test_scale_factor_checked_at_rest_against_gravity(scale, level):
     rest = {f.key: f for f in policy.findings}['rest']
     assert rest.level == level
     assert f'{(scale + 3e-3) * 100:+.2f} %' in rest.message
+
+
+def test_fill_covariance_is_the_error_of_the_fill_by_monte_carlo():
+    """Draws of the model process itself (history, gap, sample after): the fill's errors have
+    the variance fill_covariance says (brute-force Monte Carlo, 400 draws)."""
+    rate, speed, noise = 200.0, 20.0, 1e-5
+    theta = VehicleParams().as_array()
+    filler = GapFiller(theta, 4.032e-7, rate, noise)
+    stamps = (np.arange(241) * 1e9 / rate).astype(np.int64)  # 200 history, 40 gap, 1 after
+    cov = filler._cov(speed)(stamps, stamps)
+    rng = np.random.default_rng(4)
+    draws = rng.multivariate_normal(np.zeros(241), cov, 400, method="cholesky")
+    hist, gap = slice(0, 200), slice(200, 240)
+    draws[:, hist] += rng.normal(0, np.sqrt(noise), (400, 200))
+    draws[:, 240] += rng.normal(0, np.sqrt(noise), 400)
+    errors = []
+    for y in draws:
+        filler.reset()
+        filler.bridge(stamps[hist], y[hist], np.zeros(200, bool), np.full(200, speed))
+        filler._sum, filler._count = 0.0, 1  # the process mean is known (0) in this test
+        errors.append(filler.fill(stamps[gap], int(stamps[240]), y[240], speed) - y[gap])
+    filler.reset()
+    filler.bridge(stamps[hist], draws[0, hist], np.zeros(200, bool), np.full(200, speed))
+    predicted = np.diag(filler.fill_covariance(stamps[gap], int(stamps[240]), speed))
+    measured = np.var(np.array(errors), axis=0)
+    assert np.allclose(measured, predicted, rtol=0.25)  # 400 draws: 7 % sampling error
+    assert predicted[20] > 3 * predicted[0]  # least known in the middle of the gap

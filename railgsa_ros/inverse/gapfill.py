@@ -16,6 +16,8 @@ times more D1 error over a 0.2 s gap (docs/inversion.md, "Gaps").
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy import fft, linalg
 
@@ -101,22 +103,40 @@ class GapFiller:
                                                           self.rate_hz))
         return self._table[1]
 
-    def fill(self, gap_ns: np.ndarray, after_ns: int, after: float, speed_mps: float
-             ) -> np.ndarray:
-        """Conditional mean (m/s^2) at the gap stamps (K,) ns given the history and the sample
-        (after_ns, after) that ended the gap, at the gap's speed (m/s)."""
+    def _history(self) -> tuple[np.ndarray, np.ndarray]:
+        """The history thinned to CONTEXT_POINTS, newest kept: stamps (ns), accel (m/s^2)."""
         stride = max(1, -(-self.stamps.size // CONTEXT_POINTS))
-        t_obs = np.append(self.stamps[::-1][::stride][::-1], after_ns)
-        y = np.append(self.accel[::-1][::stride][::-1], after)
-        mean = self._sum / self._count if self._count else float(np.mean(y))
-        if abs(speed_mps) < STANDSTILL_MPS:
-            return np.full(gap_ns.size, mean)
+        return self.stamps[::-1][::stride][::-1], self.accel[::-1][::stride][::-1]
+
+    def _cov(self, speed_mps: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        """Covariance ((m/s^2)^2) between two stamp arrays (ns) at the speed, plus the mean's."""
         table = self._covariance(abs(speed_mps))
         lags = np.arange(table.size) / self.rate_hz
 
         def cov(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             return np.interp(np.abs(a[:, None] - b[None, :]) * 1e-9, lags, table,
                              right=0.0) + MEAN_STD ** 2
+        return cov
 
+    def fill(self, gap_ns: np.ndarray, after_ns: int, after: float, speed_mps: float
+             ) -> np.ndarray:
+        """Conditional mean (m/s^2) at the gap stamps (K,) ns given the history and the sample
+        (after_ns, after) that ended the gap, at the gap's speed (m/s)."""
+        stamps, accel = self._history()
+        t_obs, y = np.append(stamps, after_ns), np.append(accel, after)
+        mean = self._sum / self._count if self._count else float(np.mean(y))
+        if abs(speed_mps) < STANDSTILL_MPS:
+            return np.full(gap_ns.size, mean)
+        cov = self._cov(speed_mps)
         c_oo = cov(t_obs, t_obs) + self.noise_var * np.eye(t_obs.size)
         return mean + cov(gap_ns, t_obs) @ linalg.cho_solve(linalg.cho_factor(c_oo), y - mean)
+
+    def fill_covariance(self, gap_ns: np.ndarray, after_ns: int, speed_mps: float
+                        ) -> np.ndarray:
+        """Posterior covariance (K, K) ((m/s^2)^2) of the fill's error in the model: what the
+        data before and after cannot tell about the gap (the limit of any linear bridge)."""
+        t_obs = np.append(self._history()[0], after_ns)
+        cov = self._cov(speed_mps)
+        c_oo = cov(t_obs, t_obs) + self.noise_var * np.eye(t_obs.size)
+        c_go = cov(gap_ns, t_obs)
+        return cov(gap_ns, gap_ns) - c_go @ linalg.cho_solve(linalg.cho_factor(c_oo), c_go.T)
