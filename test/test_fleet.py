@@ -197,3 +197,21 @@ def test_missing_or_busy_database_is_one_line_exit_2(ingested, tmp_path, capsys)
         assert err.startswith('error: ') and err.count('\n') == 1
     finally:
         writer.close()
+
+
+def test_slow_stretches_are_left_out_of_the_pass(tmp_path):
+    """A pass that brakes to a stand and restarts: its cells below the speed the input policy
+    trusts (the band's noise floor, the minimum design speed) are invalid, the rest kept."""
+    from railgsa_ros.fleet.passes import PassOptions, analyse_pass, trusted_speeds
+
+    speed = np.array([25.0, 25.0, 0.0, 0.0, 25.0, 25.0])
+    run = run_scenario('german-low', speed, 60.0, 200.0, 'adxl355', seed=2)
+    result = analyse_pass(write_run(tmp_path / 'stop.mcap', run), PassOptions())
+    slowest, _ = trusted_speeds(PassOptions().config.with_(
+        inversion=PassOptions().config.inversion.with_(rate_hz=200.0)), VehicleParams(),
+        run.accel_covariance)
+    assert slowest >= PassOptions().config.inversion.min_design_speed_mps
+    assert np.all(result.speed_mps[result.valid] >= slowest)
+    slow = result.speed_mps < slowest
+    assert slow.sum() > 100 and not result.valid[slow].any()
+    assert result.valid.sum() * 0.25 > 0.5 * (run.chainage_m[-1] - run.chainage_m[0])

@@ -4,10 +4,11 @@
 (``railgsa_ros.offline``: the bag in pieces of about 65,536 IMU samples through the nominal
 streaming core, in constant memory; no surrogate band: the fleet measures the pass-to-pass
 scatter from repeated passes instead), each piece's output gridded as it comes
-(``review.grid.GridBuilder``: 0.25 m cells of odometry chainage, cells across data gaps
-invalid). It returns the band-filtered profile with the stamp and speed of each cell and what
-the database needs about the pass: plain numpy arrays, about 4 values per metre of track, so
-Dask ships them back cheaply.
+(``review.grid.GridBuilder``: 0.25 m cells of odometry chainage; cells across data gaps, and
+cells outside the speeds the input policy trusts (``trusted_speeds``), are invalid). It
+returns the band-filtered profile with the stamp and speed of each cell and what the database
+needs about the pass: plain numpy arrays, about 4 values per metre of track, so Dask ships
+them back cheaply.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from railgsa_ros.bag import ImuStream
 from railgsa_ros.bag.reader import GnssFixes, iter_imu
 from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.fleet.gnss import GNSS_TOPIC
+from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.offline import (
     Driver,
     HeldSpeed,
@@ -106,6 +108,19 @@ def analyse_or_fail(bag: str | Path, options: PassOptions) -> PassResult | PassF
         return PassFailure(str(bag), str(exc).strip().splitlines()[0])
 
 
+def trusted_speeds(config: UncertaintyConfig, vehicle: VehicleParams,
+                   variance: float | None) -> tuple[float, float]:
+    """Speed range (m/s) whose cells the fleet keeps: where the input policy does not call the
+    output DEGRADED (sensor noise through the band below half ``noise_limit_m``, at least
+    ``min_design_speed_mps``, at most ``max_speed_mps``; ``observability.NoiseFloor``, the
+    policy's own object)."""
+    inv = config.inversion
+    floor = NoiseFloor(vehicle.as_array(), inv.band, inv.band_order, inv.rate_hz,
+                       inv.noise_std_mps2 ** 2 if variance is None else variance)
+    return max(floor.speed_for(inv.noise_limit_m / 2), inv.min_design_speed_mps), \
+        inv.max_speed_mps
+
+
 def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     """Invert one bag and grid it (see the module docstring); InputError naming the bag when it
     cannot be read or gives no usable output."""
@@ -123,8 +138,8 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
         cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=nominal_rate_hz(first, source)))
     inv = cfg.inversion
     speed = HeldSpeed(inv.speed_mps, options.odom_topic in topics)
-    driver = Driver(cfg, options.vehicle, None,
-                    noise_variance(first, inv.accel_axis, inv.noise_std_mps2), speed)
+    variance = noise_variance(first, inv.accel_axis, inv.noise_std_mps2)
+    driver = Driver(cfg, options.vehicle, None, variance, speed)
     t0 = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
     profile, clock = GridBuilder(options.dx_m), GridBuilder(options.dx_m)
     seen = {'samples': 0, 'last': t0}
@@ -146,10 +161,12 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     if grid.valid.sum() < 10:
         raise InputError(f'{bag}: the pass covers {grid.valid.sum() * options.dx_m:.1f} m of '
                          'usable chainage, too short to align')
-    valid = grid.valid
+    slowest, fastest = trusted_speeds(cfg, options.vehicle, variance)
+    with np.errstate(invalid='ignore'):
+        valid = grid.valid & (grid.speed_mps >= slowest) & (grid.speed_mps <= fastest)
     stamps = t0 + np.round(np.where(valid, times.u_m, 0.0) * 1e9).astype(np.int64)
     return PassResult(str(bag), options, grid.x_m, np.where(valid, grid.u_m, 0.0), valid,
-                      stamps, np.where(valid, grid.speed_mps, 0.0), t0, seen['last'],
+                      stamps, np.nan_to_num(grid.speed_mps), t0, seen['last'],
                       seen['samples'], float(inv.rate_hz), dict(driver.counters),
                       time.process_time() - cpu, GnssFixes.concat(fixes))
 
