@@ -182,7 +182,25 @@ def test_grid_bag_has_the_grid_topic(long_bag, tmp_path):
 def test_bad_band_and_grid_exit_2(long_bag, tmp_path, capsys):
     path, _ = long_bag
     for extra in (['--band', 'd9'], ['--band', '70:2'], ['--grid', '0'],
-                  ['--grid', '2', '--band', 'd1'], ['--grid', '0.25', '--bands']):
+                  ['--grid', '2', '--band', 'd1'], ['--grid', '0.25', '--bands'],
+                  ['--sensor-delay', 'adxl999'], ['--sensor-delay', '-1']):
         assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), *extra]) == 2
         err = capsys.readouterr().err
-        assert len(err.strip().splitlines()) == 1 and ('band' in err or 'grid' in err)
+        assert len(err.strip().splitlines()) == 1 and any(
+            word in err for word in ('band', 'grid', 'sensor'))
+
+
+def test_sensor_delay_preset_advances_the_profile(bag, tmp_path):
+    """--sensor-delay adxl355 equals --sensor-delay 0.00525: the output is the same samples,
+    advanced by the preset's group delay (0.13 m at 25 m/s) against no compensation."""
+    path, _ = bag
+    outs = {}
+    for name, value in (('none', '0'), ('preset', 'adxl355'), ('seconds', '0.00525')):
+        out = tmp_path / f'{name}.csv'
+        assert main(['invert', str(path), '--csv', str(out), '--sensor-delay', value]) == 0
+        outs[name] = read_csv(out)[1]
+    np.testing.assert_allclose(outs['preset'][:, 2], outs['seconds'][:, 2], rtol=0, atol=1e-12)
+    late, early = outs['none'], outs['preset']
+    ok = np.isfinite(late[:, 2]) & np.isfinite(early[:, 2])
+    lag = np.argmax(np.correlate(early[ok, 2], late[ok, 2][50:-50], 'valid')) - 50
+    assert lag == pytest.approx(-5.25 * 0.5, abs=1.0)  # samples at 500 Hz: advanced

@@ -45,6 +45,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='output on a fixed chainage step (m, e.g. 0.25), band-passed on '
                    'distance: t_s is when the wheel passed the point (bag: '
                    '/track/irregularity_grid)')
+    p.add_argument('--sensor-delay', metavar='S|PRESET',
+                   help="the IMU filter's group delay to compensate: seconds or a sensor "
+                   'preset (adxl355, bmi088) for data from a real chip; bags of railgsa '
+                   'simulate have none (default: the params file, else 0)')
     p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
     p.add_argument('--odom-topic', default='/odom', metavar='T',
@@ -76,11 +80,29 @@ def build_config(args: argparse.Namespace, rate_hz: float) -> object:
     for name in ('method', 'band'):
         if getattr(args, name) is not None:
             params[name] = getattr(args, name)
+    if args.sensor_delay is not None:
+        params['sensor_delay_s'] = sensor_delay(args.sensor_delay)
     if args.smoother:
         params['smoother'] = True
     if args.speed is not None:
         params['speed_mps'] = args.speed
     return InversionConfig.from_mapping(params, source=args.params or 'command line')
+
+
+def sensor_delay(text: str) -> float:
+    """--sensor-delay: a number of seconds or the group delay of a sensor preset's filter."""
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.imu import PRESETS
+    from railgsa_ros.inverse.sensor import sensor_delay_s
+
+    chips = [name for name in PRESETS if name != 'ideal']  # the ideal sensor has no chip
+    if text in chips:
+        return sensor_delay_s(text)
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f'--sensor-delay: expected seconds or a preset '
+                          f'({", ".join(chips)}), got {text!r}') from None
 
 
 @dataclass(frozen=True)
