@@ -65,8 +65,20 @@ class GapFiller:
 
     def reset(self) -> None:
         """Forget the history (a filter restart)."""
-        self.stamps, self.accel = np.zeros(0, np.int64), np.zeros(0)
+        self._t = np.zeros(2 * self.keep, np.int64)  # history buffers: the last self._n
+        self._a = np.zeros(2 * self.keep)  # entries, moved to the front when full
+        self._n = 0
         self._sum, self._count = 0.0, 0
+
+    @property
+    def stamps(self) -> np.ndarray:
+        """Stamps (ns) of the remembered samples, oldest first."""
+        return self._t[max(0, self._n - self.keep):self._n]
+
+    @property
+    def accel(self) -> np.ndarray:
+        """Accelerations (m/s^2) of the remembered samples, oldest first."""
+        return self._a[max(0, self._n - self.keep):self._n]
 
     def bridge(self, stamps_ns: np.ndarray, accel: np.ndarray, synthetic: np.ndarray,
                speed_mps: np.ndarray) -> np.ndarray:
@@ -89,13 +101,27 @@ class GapFiller:
         return out
 
     def _observe(self, stamps_ns: np.ndarray, accel: np.ndarray) -> None:
-        """Remember accepted samples and advance the running mean."""
-        if not accel.size:
+        """Remember accepted samples (a buffer, not a concatenation: the live push is one
+        sample) and add them to the running sum in sample order."""
+        n = accel.size
+        if not n:
             return
-        self.stamps = np.concatenate([self.stamps, stamps_ns])[-self.keep:]
-        self.accel = np.concatenate([self.accel, accel])[-self.keep:]
-        self._sum = float(np.cumsum(np.concatenate([[self._sum], accel]))[-1])  # in order
-        self._count += accel.size
+        if n >= self.keep:
+            self._t[:self.keep], self._a[:self.keep] = stamps_ns[-self.keep:], accel[-self.keep:]
+            self._n = self.keep
+        else:
+            if self._n + n > self._t.size:  # keep the newest keep - 1 or fewer at the front
+                old = self._n - (self.keep - n) if self._n > self.keep - n else 0
+                self._t[:self._n - old] = self._t[old:self._n]
+                self._a[:self._n - old] = self._a[old:self._n]
+                self._n -= old
+            self._t[self._n:self._n + n], self._a[self._n:self._n + n] = stamps_ns, accel
+            self._n += n
+        if n == 1:
+            self._sum += float(accel[0])
+        else:
+            self._sum = float(np.cumsum(np.concatenate([[self._sum], accel]))[-1])
+        self._count += n
 
     def _covariance(self, speed: float) -> np.ndarray:
         if self._table is None or self._table[0] != speed:
