@@ -124,6 +124,11 @@ def test_dates_odometry_and_gnss_match_the_truth(series: Path):
     first = truths(series)[0]['start_time_s']
     days = [(t['start_time_s'] - first) / 86400 for t in truths(series)]
     np.testing.assert_allclose(days, 10.0 * np.arange(N), atol=0.7)  # hours of day vary
+    geometry = json.loads((series / 'line.geojson').read_text())['features'][0]
+    lon_v, lat_v = np.array(geometry['geometry']['coordinates']).T
+    assert geometry['properties'] == {'line_id': 'sim-1', 'start_m': 0.0}
+    np.testing.assert_array_equal(lat_v, line.lat_deg[:lat_v.size])  # a prefix of every line
+    np.testing.assert_array_equal(lon_v, line.lon_deg[:lon_v.size])
     rows = list(csv.DictReader((series / 'truth.csv').open()))
     assert len(rows) == 3 * N and {r['bag'] for r in rows} == {f'pass_{i:02d}' for i in
                                                                  range(1, N + 1)}

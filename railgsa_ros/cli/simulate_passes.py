@@ -20,8 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     'apart, with defects that grow between dates and one that appears from a '
                     'given pass on; speeds, start positions, vehicles, wheel-diameter errors '
                     'and noise differ per pass. GNSS (/gnss/fix) in every bag. Next to each '
-                    'bag PASS.truth.json, and truth.csv with one row per pass and defect '
-                    '(docs/simulation.md).')
+                    'bag PASS.truth.json, truth.csv with one row per pass and defect, and '
+                    'line.geojson, the line geometry (docs/simulation.md).')
     p.add_argument('--out', required=True, metavar='DIR', help='directory to create')
     p.add_argument('--passes', type=int, default=5, metavar='N', help='number of passes (5)')
     p.add_argument('--profile', default='german-low', metavar='SPEC',
@@ -113,11 +113,25 @@ def write_series(out: str | Path, series: Any, options: Any, overwrite: bool = F
                                             'lat_deg', 'lon_deg', 'depth_m', 'length_m')}}
                      for d in truth['defects']]
             bags.append(Path(out) / name)
+        (tmp / 'line.geojson').write_text(line_geojson(line) + '\n')
         with (tmp / 'truth.csv').open('w', newline='') as handle:
             writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else ['pass'])
             writer.writeheader()
             writer.writerows(rows)
     return bags
+
+
+def line_geojson(line: Any) -> str:
+    """A ``geo.Line`` as a GeoJSON FeatureCollection: one LineString (lon, lat in degrees) with
+    the properties line_id and start_m (chainage of the first vertex, m)."""
+    import json
+
+    feature = {'type': 'Feature',
+               'geometry': {'type': 'LineString',
+                            'coordinates': [[lo, la] for la, lo in zip(
+                                line.lat_deg.tolist(), line.lon_deg.tolist(), strict=True)]},
+               'properties': {'line_id': line.line_id, 'start_m': line.start_m}}
+    return json.dumps({'type': 'FeatureCollection', 'features': [feature]})
 
 
 def run(args: argparse.Namespace) -> int:
