@@ -104,6 +104,13 @@ def review_namespace(args: argparse.Namespace) -> argparse.Namespace:
     return namespace
 
 
+def said(outcome: object) -> str:
+    """'BAG: message', the bag named once (error messages already start with it)."""
+    if outcome.message.startswith(outcome.bag):
+        return outcome.message
+    return f'{outcome.bag}: {outcome.message}'
+
+
 def run_ingest(args: argparse.Namespace) -> int:
     """Ingest, printing one line per bag and a summary; exit 1 when a bag failed."""
     from railgsa_ros.fileio import refuse_overlap
@@ -119,7 +126,7 @@ def run_ingest(args: argparse.Namespace) -> int:
 
     def show(o: object) -> None:
         label = f'pass {o.pass_id}' if o.pass_id is not None else '-'
-        print(f'{o.status:<9} {label:<8} {o.bag}: {o.message}', flush=True)
+        print(f'{o.status:<9} {label:<8} {said(o)}', flush=True)
 
     outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show, geometry)
     for o in outcomes:
@@ -138,7 +145,7 @@ def run_ingest(args: argparse.Namespace) -> int:
           f'defects ({n_new} new); this batch: {len(outcomes) - len(bad)} stored or skipped, '
           f'{len(bad)} failed')
     for o in bad:
-        print(f'  {o.status}: {o.bag}: {o.message}', file=sys.stderr)
+        print(f'  {o.status}: {said(o)}', file=sys.stderr)
     return EXIT_SOME_FAILED if bad else 0
 
 
