@@ -35,7 +35,8 @@ def series(tmp_path_factory) -> Path:
 
 
 def truths(out: Path) -> list[dict]:
-    return [json.loads((out / f'pass_{i:02d}.truth.json').read_text()) for i in range(1, N + 1)]
+    return [json.loads((out / 'truth' / f'pass_{i:02d}.json').read_text())
+            for i in range(1, N + 1)]
 
 
 def test_defect_depths_follow_the_spec_and_the_new_one_appears(series: Path):
@@ -129,7 +130,9 @@ def test_dates_odometry_and_gnss_match_the_truth(series: Path):
     assert geometry['properties'] == {'line_id': 'sim-1', 'start_m': 0.0}
     np.testing.assert_array_equal(lat_v, line.lat_deg[:lat_v.size])  # a prefix of every line
     np.testing.assert_array_equal(lon_v, line.lon_deg[:lon_v.size])
-    rows = list(csv.DictReader((series / 'truth.csv').open()))
+    rows = list(csv.DictReader((series / 'truth' / 'truth.csv').open()))
+    assert sorted(p.name for p in series.glob('pass_*')) == [f'pass_{i:02d}' for i in
+                                                              range(1, N + 1)]  # bags only
     assert len(rows) == 3 * N and {r['bag'] for r in rows} == {f'pass_{i:02d}' for i in
                                                                  range(1, N + 1)}
 

@@ -20,7 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     'apart, with defects that grow between dates and one that appears from a '
                     'given pass on; speeds, start positions, vehicles, wheel-diameter errors '
                     'and noise differ per pass. GNSS (/gnss/fix) in every bag. Next to each '
-                    'bag PASS.truth.json, truth.csv with one row per pass and defect, and '
+                    'truth/PASS.json, truth/truth.csv with one row per pass and defect, and '
                     'line.geojson, the line geometry (docs/simulation.md).')
     p.add_argument('--out', required=True, metavar='DIR', help='directory to create')
     p.add_argument('--passes', type=int, default=5, metavar='N', help='number of passes (5)')
@@ -94,7 +94,7 @@ def write_series(out: str | Path, series: Any, options: Any, overwrite: bool = F
     line = default_line(max(p.end_m for p in plans))  # a prefix of every pass's GNSS line
     bags = []
     with atomic_output(Path(out), overwrite) as tmp:
-        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / 'truth').mkdir(parents=True)
         rows = []
         for plan in plans:
             name = f'pass_{plan.index + 1:02d}'
@@ -106,7 +106,7 @@ def write_series(out: str | Path, series: Any, options: Any, overwrite: bool = F
             stream_bag(tmp / name, pass_options)
             truth = plan.truth(line, series)
             truth['bag'] = name
-            (tmp / f'{name}.truth.json').write_text(json.dumps(truth, indent=1) + '\n')
+            (tmp / 'truth' / f'{name}.json').write_text(json.dumps(truth, indent=1) + '\n')
             rows += [{'pass': truth['pass'], 'bag': name, 'date': truth['date'],
                       'days': truth['days'], 'odom_scale': truth['odom_scale'], **{
                           k: d[k] for k in ('id', 'kind', 'present', 'new', 'centre_km',
@@ -114,7 +114,7 @@ def write_series(out: str | Path, series: Any, options: Any, overwrite: bool = F
                      for d in truth['defects']]
             bags.append(Path(out) / name)
         (tmp / 'line.geojson').write_text(line_geojson(line) + '\n')
-        with (tmp / 'truth.csv').open('w', newline='') as handle:
+        with (tmp / 'truth' / 'truth.csv').open('w', newline='') as handle:
             writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else ['pass'])
             writer.writeheader()
             writer.writerows(rows)
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                          start_time=DEFAULT_START_S)
     bags = write_series(args.out, series_from_args(args), options, args.overwrite)
     for bag in bags:
-        truth = json.loads(bag.with_name(f'{bag.name}.truth.json').read_text())
+        truth = json.loads((bag.parent / 'truth' / f'{bag.name}.json').read_text())
         depths = ', '.join(f'{1e3 * d["depth_m"]:.2f}' for d in truth['defects'])
         print(f'{bag}  {truth["date"][:10]}  km {truth["start_km"]:.3f}-'
               f'{truth["end_m"] / 1e3:.3f}  odometry x{truth["odom_scale"]:.4f}  '
