@@ -215,3 +215,24 @@ def test_slow_stretches_are_left_out_of_the_pass(tmp_path):
     slow = result.speed_mps < slowest
     assert slow.sum() > 100 and not result.valid[slow].any()
     assert result.valid.sum() * 0.25 > 0.5 * (run.chainage_m[-1] - run.chainage_m[0])
+
+
+def test_local_cluster_listens_on_loopback_only():
+    """Every listening socket of the LocalCluster (scheduler, nannies, workers, HTTP) is on
+    127.0.0.1 (ss -ltnp, matched by process id)."""
+    import os
+    import shutil
+    import subprocess
+
+    from railgsa_ros.fleet.ingest import dask_client
+
+    if shutil.which('ss') is None:
+        pytest.skip('ss (iproute2) not installed')
+    with dask_client(None, 2) as client:
+        pids = {os.getpid(), *client.run(os.getpid).values()}
+        pids |= set(client.run(os.getppid).values())  # the nannies
+        listing = subprocess.run(['ss', '-ltnpH'], capture_output=True, text=True,
+                                 check=True).stdout.splitlines()
+    ours = [row.split()[3] for row in listing if any(f'pid={p},' in row for p in pids)]
+    assert len(ours) >= 5  # scheduler (2), 2 workers, 2 nannies at least
+    assert all(local.startswith('127.0.0.1:') for local in ours), ours

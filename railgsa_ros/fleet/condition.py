@@ -29,10 +29,9 @@ MAX_DAYS = 1e5  # projections beyond ~2240 are reported as none
 
 @dataclass(frozen=True)
 class LinePass:
-    """One 'ok' pass of a line: id, start stamp (ns), scatter (m), gain, alignment."""
+    """One 'ok' pass of a line: id, scatter (m), gain, alignment."""
 
     pass_id: int
-    start_ns: int
     noise_m: float
     gain: float
     alignment: Alignment
@@ -41,15 +40,15 @@ class LinePass:
 def line_passes(con: duckdb.DuckDBPyConnection, line: str, track: str) -> list[LinePass]:
     """The line's aligned passes in time order."""
     rows = con.execute("""
-        SELECT p.pass_id, epoch_ns(p.start_time), p.noise_m, coalesce(p.gain, 'nan'),
+        SELECT p.pass_id, p.noise_m, coalesce(p.gain, 'nan'),
                a.offset_m, a.scale, a.offset_sd_m, a.scale_sd, a.cov_offset_scale, a.method
         FROM passes p JOIN alignments a USING (pass_id)
         WHERE p.line = ? AND p.track = ? AND p.status = 'ok' ORDER BY p.start_time, p.pass_id
         """, [line, track]).fetchall()
     out = []
-    for pid, start, noise, gain, off, scale, off_sd, scale_sd, cov, method in rows:
+    for pid, noise, gain, off, scale, off_sd, scale_sd, cov, method in rows:
         c = np.array([[off_sd ** 2, cov], [cov, scale_sd ** 2]])
-        out.append(LinePass(pid, int(start), float(noise), float(gain),
+        out.append(LinePass(pid, float(noise), float(gain),
                             Alignment(off, scale, c, method)))
     return out
 

@@ -44,7 +44,7 @@ class Outcome:
 @contextmanager
 def dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
     """A distributed Client on ``scheduler``, or on a LocalCluster of ``workers`` processes with
-    one thread each, on 127.0.0.1, no dashboard."""
+    one thread each; scheduler, workers and the HTTP endpoint on 127.0.0.1 (a free port)."""
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
@@ -53,7 +53,7 @@ def dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
         return
     env = {'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host=HOST,
-                      dashboard_address=None, silence_logs=40, env=env) as cluster, \
+                      dashboard_address=f'{HOST}:0', silence_logs=40, env=env) as cluster, \
             Client(cluster) as client:
         yield client
 
