@@ -3,7 +3,8 @@
 Five passes 30 days apart over one line (the simulator's default geometry, GNSS at 5 Hz with
 2 m noise), 23-30 m/s, 200 Hz, wheel-diameter errors up to 0.5 %, vehicles within 3 %: a dip
 that deepens by 0.04 mm/day and one that appears from the fourth pass. The line geometry is
-given to the fleet as GeoJSON; positions are then in the line's own chainage.
+given to the fleet as the GeoJSON the simulator writes; positions are then in the line's own
+chainage.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import pytest
 
 from railgsa_ros.cli.main import main
 from railgsa_ros.fleet import db
-from railgsa_ros.geo import default_line, geodetic_to_enu
+from railgsa_ros.geo import geodetic_to_enu
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.review.truth import load_truth
 
@@ -30,12 +31,9 @@ def fleet(tmp_path_factory):
     assert main(['simulate-passes', '--out', str(out), '--passes', '5', '--days', '30',
                  '--section-km', '0.3-1.3', '--defects', DEFECTS, '--speed-range', '23-30',
                  '--stop-every', '0', '--rate', '200', '--sensor', 'adxl355', '--seed', '3']) == 0
-    truths = [json.loads(p.read_text()) for p in sorted(out.glob('pass_*.truth.json'))]
-    line = default_line(max(t['end_m'] for t in truths))
-    geometry = root / 'line.geojson'
-    geometry.write_text(json.dumps({'type': 'LineString', 'coordinates': np.column_stack(
-        [line.lon_deg, line.lat_deg]).tolist()}))
-    bags = sorted(str(p) for p in out.iterdir() if p.is_dir())
+    truths = [json.loads(p.read_text()) for p in sorted((out / 'truth').glob('pass_*.json'))]
+    geometry = out / 'line.geojson'  # written by simulate-passes
+    bags = sorted(str(p) for p in out.glob('pass_*'))
     path = root / 'fleet.duckdb'
     assert main(['fleet', 'ingest', *bags, '--db', str(path), '--workers', '2', '--line',
                  'sim-1', '--line-geometry', str(geometry)]) == 0

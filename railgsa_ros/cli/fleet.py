@@ -40,8 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ing.add_argument('--line-geometry', metavar='FILE',
                      help='line geometry for GNSS anchoring: GeoJSON LineString (lon, lat) or '
                           'CSV lat,lon; stored with the line (default: the stored one)')
-    ing.add_argument('--geometry-start-km', type=float, default=0.0, metavar='KM',
-                     help='km-post of the geometry\'s first vertex (default 0)')
+    ing.add_argument('--geometry-start-km', type=float, metavar='KM',
+                     help='km-post of the geometry\'s first vertex (default: the GeoJSON '
+                          'Feature\'s start_m property, else 0)')
     ing.add_argument('--params', metavar='FILE', help='ROS params file (as railgsa review)')
     ing.add_argument('--vehicle', metavar='FILE', help='nominal vehicle YAML')
     ing.add_argument('--method', choices=('spectral', 'feedback', 'kalman'))
@@ -122,7 +123,8 @@ def run_ingest(args: argparse.Namespace) -> int:
     options = pass_options(args)
     geometry = None
     if args.line_geometry:
-        geometry = load_geometry(args.line_geometry, 1000.0 * args.geometry_start_km, args.line)
+        start = None if args.geometry_start_km is None else 1000.0 * args.geometry_start_km
+        geometry = load_geometry(args.line_geometry, start, options.line)
 
     def show(o: object) -> None:
         label = f'pass {o.pass_id}' if o.pass_id is not None else '-'

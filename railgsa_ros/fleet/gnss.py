@@ -39,10 +39,12 @@ def horizontal_variance(fixes: GnssFixes) -> np.ndarray:
     return np.where(good, np.where(known, east_north, DEFAULT_VAR_M2), np.inf)
 
 
-def load_geometry(path: str | Path, start_m: float = 0.0, line_id: str = 'line') -> object:
+def load_geometry(path: str | Path, start_m: float | None = None,
+                  line_id: str = 'line') -> object:
     """A ``geo.Line`` from a GeoJSON LineString (a bare geometry, a Feature or the first
     Feature of a FeatureCollection; coordinates lon, lat) or a CSV with a header lat,lon; the
-    chainage at its first vertex is ``start_m``. InputError naming the file when unreadable."""
+    chainage at its first vertex is ``start_m``, else the Feature's ``start_m`` property, else
+    0. InputError naming the file when unreadable."""
     from railgsa_ros.geo import Line
 
     path = Path(path)
@@ -53,6 +55,8 @@ def load_geometry(path: str | Path, start_m: float = 0.0, line_id: str = 'line')
             if doc.get('type') == 'FeatureCollection':
                 doc = doc['features'][0]
             if doc.get('type') == 'Feature':
+                if start_m is None:
+                    start_m = float((doc.get('properties') or {}).get('start_m', 0.0))
                 doc = doc['geometry']
             if doc.get('type') != 'LineString':
                 raise ValueError('expected a LineString')
@@ -60,7 +64,7 @@ def load_geometry(path: str | Path, start_m: float = 0.0, line_id: str = 'line')
         else:
             table = np.genfromtxt(path, delimiter=',', names=True)
             lat, lon = np.atleast_1d(table['lat']), np.atleast_1d(table['lon'])
-        return Line(lat, lon, start_m, line_id)
+        return Line(lat, lon, 0.0 if start_m is None else start_m, line_id)
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError,
             ConfigError) as exc:
         raise InputError(f'{path}: not a line geometry ({exc})'.splitlines()[0]) from None
