@@ -53,7 +53,7 @@ def _inject(kind: str, acc: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray,
     elif kind == 'saturated':
         acc[2000:2100] = 8 * G
     elif kind == 'stuck':
-        acc[2000:3000] = acc[2000]
+        acc[2000:4000] = acc[2000]
     elif kind == 'gap':
         keep[2000:5000] = False
     return stamps[keep], acc[keep]
@@ -62,9 +62,9 @@ def _inject(kind: str, acc: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray,
 @pytest.mark.parametrize('kind,expected', [
     ('nan', {'accepted': 5950, 'nan': 50, 'gap': 1, 'bridged': 50}),
     ('saturated', {'accepted': 5900, 'saturated': 100, 'gap': 1, 'bridged': 100}),
-    # samples 2501..2999 repeat sample 2000 for more than stuck_s = 0.5 s; the 0.5 s hole they
-    # leave is bridged (max_bridge_s 1.2 s); the 3 s gap resets
-    ('stuck', {'accepted': 5501, 'stuck': 499, 'gap': 1, 'bridged': 499}),
+    # samples 2501..3999 repeat sample 2000 for more than stuck_s = 0.5 s; the 1.5 s hole they
+    # leave is longer than max_bridge_s (1.2 s): a reset
+    ('stuck', {'accepted': 4501, 'stuck': 1499, 'gap': 1, 'reset': 1}),
     ('gap', {'accepted': 3000, 'gap': 1, 'reset': 1}),
 ])
 def test_bad_stretch_counted_by_reason_without_a_spike(kind: str, expected: dict, run: Any,
