@@ -107,7 +107,8 @@ def _align(ref: Reference | None, result: PassResult, geometry: object | None,
     o = result.options
     gnss = None
     if geometry is not None and len(result.fixes) and frame in (None, 'gnss'):
-        gnss = align_fixes(result.fixes, result.stamps_ns, result.s_m, geometry)
+        ok = result.valid  # invalid cells (dropouts, too slow) carry the pass start as stamp
+        gnss = align_fixes(result.fixes, result.stamps_ns[ok], result.s_m[ok], geometry)
     prior = gnss or origin(1000.0 * o.km_origin, o.direction)
     if ref is None:
         return prior
