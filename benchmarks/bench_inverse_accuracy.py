@@ -19,10 +19,14 @@
     filter reset, beside the model's own limit (posterior std of the D1 error next to the gap).
 (f) Parameter mismatch: true k_s +15 %, k_us -10 %, c -15 %, BMI088 model at 30 m/s, inverted
     with the nominal and with the true parameters, beside the FFT baseline with the true ones.
+(g) Calibration on 500 m of a reference run (the mismatch of (f)): D1 error on the rest and the
+    band before and after (benchmarks/bench_uq_calibration.py).
+(h) Coverage of the total uncertainty band on ensembles drawn from the priors
+    (benchmarks/bench_uq_coverage.py; a few minutes).
 ``--multirate`` adds the multirate band stage against the single-rate FIR on the runs of (b).
 
 Usage: python benchmarks/bench_inverse_accuracy.py [--length 800] [--seed 1] [--multirate]
-    [--tables abcdef]
+    [--tables abcdefgh]
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ import argparse
 import itertools
 from unittest import mock
 
+from bench_uq_calibration import calibration_table
+from bench_uq_coverage import coverage_table
 import numpy as np
 
 from railgsa_ros.imu import accel_covariance, imu_spec
@@ -263,7 +269,8 @@ def main() -> None:
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--multirate', action='store_true',
                         help='add the multirate against single-rate table')
-    parser.add_argument('--tables', default='abcdef', help='tables to print (default abcdef)')
+    parser.add_argument('--tables', default='abcdefgh',
+                        help='tables to print (default abcdefgh)')
     args = parser.parse_args()
     if 'a' in args.tables:
         err = paper_mode()
@@ -272,7 +279,8 @@ def main() -> None:
     tables = {'b': lambda: methods_table(args.length, args.seed, args.multirate),
               'c': lambda: delay_table(args.length, args.seed),
               'd': lambda: variable_speed_table(args.seed), 'e': dropout_table,
-              'f': lambda: mismatch_table(args.length, args.seed)}
+              'f': lambda: mismatch_table(args.length, args.seed),
+              'g': calibration_table, 'h': coverage_table}  # the uq engineer's benchmarks
     for key, table in tables.items():
         if key in args.tables:
             table()

@@ -59,13 +59,10 @@ def ensemble(args, preset: str, truth_law, band_law, sensor_terms: bool = True,
     return np.mean(inside, axis=0), float(np.mean(width))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--runs', type=int, default=24)
-    parser.add_argument('--duration', type=float, default=30.0, help='s per run')
-    parser.add_argument('--speed', type=float, default=30.0, help='m/s')
-    parser.add_argument('--seed', type=int, default=5)
-    args = parser.parse_args()
+def coverage_table(runs: int = 24, duration: float = 30.0, speed: float = 30.0,
+                   seed: int = 5) -> None:
+    """Print the coverage table of the module docstring."""
+    args = argparse.Namespace(runs=runs, duration=duration, speed=speed, seed=seed)
     fixed = NOMINAL.as_array().copy()
     for name, factor in MISMATCH.items():
         fixed[('m_s', 'm_us', 'k_s', 'k_us', 'c').index(name)] *= factor
@@ -79,18 +76,27 @@ def main() -> None:
         ('bmi088', 'fixed +15/-10/-15 %', 'CoV 0.1', True, fixed, 'total band'),
     ]
     laws = {'CoV 0.1': realistic(), 'Table 3': table3(NOMINAL)}
-    print(f'{args.runs} runs of {args.duration:g} s at {args.speed:g} m/s, German low, D1; '
-          'target for the 95 % band: 92-98 %')
+    print(f'\n(h) coverage: {runs} runs of {duration:g} s at {speed:g} m/s, German low, D1, '
+          'true vehicles and sensors drawn from the priors; target for the 95 % band: 92-98 %')
     print('| sensor | true vehicles | band law | band | 50 % | 95 % | 99 % | '
           '95 % half-width mm | s |')
     print('|---|---|---|---|---|---|---|---|---|')
     for preset, truth, law, terms, theta, label in cases:
         start = time.perf_counter()
-        runs = args.runs if theta is None else 1
-        inside, width = ensemble(argparse.Namespace(**{**vars(args), 'runs': runs}), preset,
-                                 laws.get(truth), laws[law], terms, theta)
+        case = argparse.Namespace(**{**vars(args), 'runs': runs if theta is None else 1})
+        inside, width = ensemble(case, preset, laws.get(truth), laws[law], terms, theta)
         print(f'| {preset} | {truth} | {law} | {label} | {inside[0]:.3f} | {inside[1]:.3f} | '
               f'{inside[2]:.3f} | {width * 1e3:.4f} | {time.perf_counter() - start:.0f} |')
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--runs', type=int, default=24)
+    parser.add_argument('--duration', type=float, default=30.0, help='s per run')
+    parser.add_argument('--speed', type=float, default=30.0, help='m/s')
+    parser.add_argument('--seed', type=int, default=5)
+    args = parser.parse_args()
+    coverage_table(args.runs, args.duration, args.speed, args.seed)
 
 
 if __name__ == '__main__':

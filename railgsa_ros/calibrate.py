@@ -25,6 +25,7 @@ import numpy as np
 from railgsa_ros.errors import InputError
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
@@ -111,10 +112,10 @@ def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
         thetas[1:, cols] *= np.exp(np.eye(len(names)) * STEP)
         out = _bank(stamps_ns, acc_z, speed_mps, config, thetas)
         keep = ((out.chainage_m > x_ref[0] + MARGIN_M) & (out.chainage_m < x_ref[-1] - MARGIN_M)
-                & np.all(np.isfinite(out.u_m), axis=0))
+                & np.all(np.isfinite(out.u_m), axis=0) & (out.quality != Quality.INVALID))
         if keep.sum() < 100:
-            raise InputError('calibrate: the reference covers fewer than 100 reconstructed '
-                             f'samples (reference {x_ref[0]:.0f}-{x_ref[-1]:.0f} m)')
+            raise InputError('calibrate: the reference covers fewer than 100 valid '
+                             f'reconstructed samples (reference {x_ref[0]:.0f}-{x_ref[-1]:.0f} m)')
         ref = np.interp(out.chainage_m[keep], x_ref, u_ref)
         u = out.u_m[:, keep]
         resid = u[0] - ref

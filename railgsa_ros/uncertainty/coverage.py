@@ -4,8 +4,8 @@ An ensemble run draws its TRUE vehicle from the uncertain-parameter law (``draw_
 TRUE sensor around a preset (``draw_sensor``: noise density x lognormal(0, 0.3), scale factor
 N(0, preset's), bias N(0, preset's) per axis, the preset's dropouts); the band is computed with the
 nominal vehicle, the law and the preset's datasheet noise (what a user knows). ``coverage`` is the
-fraction of the band's samples (away from the ends) whose truth, band-passed on distance as the
-inversion does, lies inside the band of each nominal level.
+fraction of the band's published samples (not INVALID, away from the ends) whose truth,
+band-passed on distance as the inversion does, lies inside the band of each nominal level.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from railgsa_ros.imu import ImuSpec, accel_covariance, imu_spec
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.scenario import Run
 from railgsa_ros.uncertainty.config import UncertaintyConfig
@@ -75,7 +76,7 @@ def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
         chain = band.chainage_m + run.chainage_m[0]
         truth = np.interp(chain, x, truth_x)
         keep = ((chain > chain[0] + MARGIN_M) & (chain < chain[-1] - MARGIN_M)
-                & np.isfinite(band.mean_m))
+                & np.isfinite(band.mean_m) & (band.quality != Quality.INVALID))
         lo, hi = band.lower_m[keep], band.upper_m[keep]
         inside.append(float(np.mean((truth[keep] >= lo) & (truth[keep] <= hi))))
         width.append(float(np.mean(hi - lo) / 2))

@@ -35,13 +35,15 @@ OFFLINE_CHUNK = 65536  # samples per push in offline_bands
 @dataclass(frozen=True)
 class Band:
     """Per emitted IMU sample: stamps_ns (K,) int64, chainage_m (K,), lower_m, mean_m and
-    upper_m (K,) in metres (quantiles and PCE mean of the irregularity)."""
+    upper_m (K,) in metres (quantiles and PCE mean of the irregularity) and quality (K,) uint8
+    (Quality codes; None in bands built by hand)."""
 
     stamps_ns: np.ndarray
     chainage_m: np.ndarray
     lower_m: np.ndarray
     mean_m: np.ndarray
     upper_m: np.ndarray
+    quality: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.stamps_ns.size)
@@ -49,8 +51,10 @@ class Band:
     @classmethod
     def concat(cls, bands: list[Band]) -> Band:
         """Join bands in order."""
+        quality = None if any(b.quality is None for b in bands) else \
+            np.concatenate([b.quality for b in bands])
         return cls(*(np.concatenate([getattr(b, f) for b in bands]) for f in
-                     ('stamps_ns', 'chainage_m', 'lower_m', 'mean_m', 'upper_m')))
+                     ('stamps_ns', 'chainage_m', 'lower_m', 'mean_m', 'upper_m')), quality)
 
 
 @dataclass(frozen=True)
@@ -196,7 +200,7 @@ class UncertaintyStream:
         sensor = self.terms.std(out.stamps_ns, self.design.projector[0] @ out.u_m,
                                 out.speed_mps, out.quality)
         lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m, sensor)
-        band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper)
+        band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper, out.quality)
         return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m),
                       out.u_m, sensor)
 
