@@ -50,6 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ing.add_argument('--imu-topic', default='/imu/data', metavar='T')
     ing.add_argument('--odom-topic', default='/odom', metavar='T')
     add_location_options(ing)  # --line, --track, --direction, --km-origin, --gnss-topic
+    ing.add_argument('--detect-fraction', type=float, metavar='F',
+                     help='defects are followed from F x the alert limit of the speed class '
+                          '(default 0.5; 0 < F <= 1)')
     ing.set_defaults(func=run_ingest)
 
     rep = sub.add_parser('report', help='HTML trend report of the database')
@@ -76,16 +79,21 @@ def pass_options(args: argparse.Namespace) -> object:
     configuration and vehicle exactly as ``railgsa review --no-uncertainty`` builds them."""
     from railgsa_ros.cli.review import build_options
     from railgsa_ros.errors import ConfigError
+    from railgsa_ros.fleet.defects import DETECT_FRACTION
     from railgsa_ros.fleet.passes import PassOptions
 
     if args.workers < 1:
         raise ConfigError(f'--workers: must be at least 1, got {args.workers}')
+    fraction = DETECT_FRACTION if args.detect_fraction is None else args.detect_fraction
+    if not 0 < fraction <= 1:
+        raise ConfigError(f'--detect-fraction: expected 0 < F <= 1, got {fraction}')
     review = build_options(review_namespace(args))
     where = review.reference  # options, else the params file's location keys
     return PassOptions(review.config, review.vehicle, where.line or DEFAULT_LINE,
                        where.track or DEFAULT_TRACK, where.direction, where.km_origin,
                        args.vehicle_id, args.imu_topic, args.odom_topic, args.gnss_topic,
-                       rate_from_bag=review.rate_from_bag)
+                       rate_from_bag=review.rate_from_bag,
+                       detect_fraction=fraction)
 
 
 SHARED = ('params', 'vehicle', 'method', 'band', 'imu_topic', 'odom_topic', 'gnss_topic', 'line',

@@ -5,8 +5,10 @@ each pass's scatter sigma_p and gain g_p and the fused profile; every pass is se
 defects (``defects.detect``); detections are matched into defects; each defect is then measured
 in every pass covering it, found there or not, so its depth series has no holes. The depth of
 pass p has the SD sqrt(sigma_p^2 + (s_g d)^2), s_g the RMS gain of the line's passes (a vehicle
-or speed that reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when an earlier
-pass covered its position and did not find it; its trend then starts at its first detection.
+or speed that reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when earlier
+passes covered its position, did not find it, and saw less than NEW_RATIO of the depth of its
+first detection there (a defect that grows past the detection threshold is not new); its trend
+then starts at its first detection.
 """
 
 from __future__ import annotations
@@ -18,13 +20,14 @@ import numpy as np
 
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.align import Alignment
-from railgsa_ros.fleet.defects import Peak, detect, match, measure
+from railgsa_ros.fleet.defects import DETECT_FRACTION, Peak, detect, match, measure
 from railgsa_ros.fleet.fuse import fuse_line, pass_scatter
 from railgsa_ros.fleet.trend import crossing, fit_trend
 from railgsa_ros.review.limits import LEVELS, Limits
 
 DAY_NS = 86400 * 10**9
 MAX_DAYS = 1e5  # projections beyond ~2240 are reported as none
+NEW_RATIO = 0.5  # NEW: every earlier pass saw less than this share of the first detected depth
 
 
 @dataclass(frozen=True)
@@ -71,9 +74,11 @@ def _level(depth_m: float, limits_row: np.ndarray) -> tuple[str, str, float]:
 
 
 def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
-                limits: Limits, geometry: object | None = None) -> None:
+                limits: Limits, geometry: object | None = None,
+                fraction: float = DETECT_FRACTION) -> None:
     """Recompute the line's scatter, fused profile, detections and defects (module docstring);
-    with a ``geo.Line`` in the line's frame, the defects get their WGS84 position."""
+    with a ``geo.Line`` in the line's frame, the defects get their WGS84 position; defects are
+    detected from ``fraction`` of the alert limit."""
     pass_scatter(con, line, track)
     fuse_line(con, line, track)
     passes = line_passes(con, line, track)
@@ -84,7 +89,7 @@ def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
     for i, p in enumerate(passes):
         prof = pass_profile(con, p.pass_id)
         found += [(i, pk) for pk in detect(prof['cell'], prof['u_m'], prof['valid'],
-                                           prof['speed_mps'], dx, limits)]
+                                           prof['speed_mps'], dx, limits, fraction)]
     x_found = np.array([pk.x_m for _, pk in found])
     sign_found = np.array([np.sign(pk.signed_m) for _, pk in found])
     ids = match(x_found, sign_found)
@@ -151,9 +156,10 @@ def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int,
                   sign: float, obs: dict[str, np.ndarray], limits: Limits,
                   lat_lon: tuple[float, float]) -> None:
     """One defect's trend row from its observations (in time order), at (lat, lon) deg."""
-    found_at = np.flatnonzero(obs['detected'])
-    first = int(found_at[0])
-    new = first > 0  # an earlier pass covered it and did not find it
+    first = int(np.flatnonzero(obs['detected'])[0])
+    # earlier passes covered it and saw much less: a jump, not a defect that grew past the
+    # detection threshold
+    new = first > 0 and bool(np.max(obs['depth'][:first]) < NEW_RATIO * obs['depth'][first])
     use = slice(first, None) if new else slice(None)
     t_days = obs['stamp'][use].astype(float) / DAY_NS
     trend = fit_trend(t_days, obs['depth'][use], obs['depth_sd'][use])

@@ -219,7 +219,8 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
                 if report is not None:
                     report(outcome)
         update_line(con, options.line, options.track, options.dx_m,
-                    en13848_limits(options.config.inversion.band), geometry)
+                    en13848_limits(options.config.inversion.band), geometry,
+                    options.detect_fraction)
     finally:
         con.close()
     return outcomes

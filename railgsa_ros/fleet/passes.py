@@ -23,6 +23,7 @@ import numpy as np
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.bag.reader import GnssFixes, iter_imu
 from railgsa_ros.errors import InputError, RailGsaError
+from railgsa_ros.fleet.defects import DETECT_FRACTION
 from railgsa_ros.fleet.gnss import GNSS_TOPIC
 from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.offline import (
@@ -46,8 +47,8 @@ class PassOptions:
     """How every pass of a batch is inverted and where it lies: inversion configuration, nominal
     vehicle, location (line, track, direction of the km-posts along the run 'increasing' or
     'decreasing', km-post of the odometry origin), vehicle id, topics (IMU, odometry, GNSS),
-    grid step (m) and whether the IMU rate comes from the bag (else
-    ``config.inversion.rate_hz``)."""
+    grid step (m), whether the IMU rate comes from the bag (else ``config.inversion.rate_hz``)
+    and the share of the alert limit from which the line's defects are detected."""
 
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     vehicle: VehicleParams = field(default_factory=VehicleParams)
@@ -61,6 +62,7 @@ class PassOptions:
     gnss_topic: str = GNSS_TOPIC
     dx_m: float = DX_M
     rate_from_bag: bool = True
+    detect_fraction: float = DETECT_FRACTION
 
 
 @dataclass(frozen=True)
@@ -164,7 +166,9 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     slowest, fastest = trusted_speeds(cfg, options.vehicle, variance)
     with np.errstate(invalid='ignore'):
         valid = grid.valid & (grid.speed_mps >= slowest) & (grid.speed_mps <= fastest)
-    stamps = t0 + np.round(np.where(valid, times.u_m, 0.0) * 1e9).astype(np.int64)
+    timed = np.isfinite(times.u_m)  # every cell reached has a time; gaps are interpolated
+    stamps = t0 + np.round(np.interp(grid.x_m, grid.x_m[timed], times.u_m[timed]) * 1e9
+                           ).astype(np.int64)
     return PassResult(str(bag), options, grid.x_m, np.where(valid, grid.u_m, 0.0), valid,
                       stamps, np.nan_to_num(grid.speed_mps), t0, seen['last'],
                       seen['samples'], float(inv.rate_hz), dict(driver.counters),
