@@ -552,7 +552,10 @@ class _McapChunks(_McapTopics):
     """``_McapTopics`` handing its messages out chunk by chunk in log-time order (file order on
     ties). After each MCAP chunk, the messages older than every chunk still to come (their
     ``message_start_time`` from the files' chunk indexes) are complete and go out; a file
-    without a summary (a recording cut short) is taken in chunk order. Topics of a type
+    without a summary (a recording cut short) is taken in chunk order. Memory is bounded when
+    the chunks follow each other in log time, as recorders write them; where later chunks hold
+    earlier messages (a topic written after the others), the messages wait until those chunks
+    are read. Topics of a type
     without a fixed layout (NavSatFix) keep their messages' bytes."""
 
     def __init__(self, wanted: dict[str, str]) -> None:
