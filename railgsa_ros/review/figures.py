@@ -62,37 +62,31 @@ def _save(fig, path: Path) -> Path:
 
 def envelope(x: np.ndarray, *ys: np.ndarray, bins: int = PIXELS) -> tuple[np.ndarray, ...]:
     """(x (B,), then min (B,) and max (B,) of every y) over consecutive blocks of samples; the
-    input itself (min = max = y) when it has fewer than 2 * bins samples."""
+    input itself (min = max = y) when it has fewer than 2 * bins samples. Reduced in place
+    (``reduceat``): no copy of a long signal."""
     x = np.asarray(x, dtype=float)
     if x.size < 2 * bins:
         return (x, *(v for y in ys for v in (y, y)))
-    size = -(-x.size // bins)
-    count = -(-x.size // size)
-    pad = count * size - x.size
-
-    def blocks(y: np.ndarray, fill: float) -> np.ndarray:
-        y = np.asarray(y, dtype=float)
-        return np.concatenate([y, np.full(pad, fill)]).reshape(count, size)
-
-    out = [np.mean(blocks(x, x[-1]), axis=1)]
+    starts = np.arange(0, x.size, -(-x.size // bins))
+    out = [np.add.reduceat(x, starts) / np.diff(np.append(starts, x.size))]
     for y in ys:  # fmin/fmax skip NaN (a block of NaN stays NaN, without a warning)
-        b = blocks(y, np.nan)
-        out += [np.fmin.reduce(b, axis=1), np.fmax.reduce(b, axis=1)]
+        out += [np.fmin.reduceat(y, starts), np.fmax.reduceat(y, starts)]
     return tuple(out)
 
 
-def _signal(ax, x: np.ndarray, y: np.ndarray, **kw) -> None:
-    """A line, or its envelope as a filled area when it is long."""
+def _signal(ax, x: np.ndarray, y: np.ndarray, scale: float = 1.0, **kw) -> None:
+    """A line of y * scale, or its envelope as a filled area when it is long."""
     xe, lo, hi = envelope(x, y)
     if xe.size == np.size(x):
-        ax.plot(x, y, lw=0.8, **kw)
+        ax.plot(x, np.asarray(y) * scale, lw=0.8, **kw)
     else:
-        ax.fill_between(xe, lo, hi, lw=0.6, **kw)
+        ax.fill_between(xe, lo * scale, hi * scale, lw=0.6, **kw)
 
 
 def _band(ax, x: np.ndarray, lower: np.ndarray, upper: np.ndarray, label: str) -> None:
+    """The band (m, drawn in mm) as a filled envelope."""
     xe, lo, _, _, hi = envelope(x, lower, upper)
-    ax.fill_between(xe, lo, hi, color=BAND_COLOUR, alpha=0.5, lw=0, label=label)
+    ax.fill_between(xe, lo * MM, hi * MM, color=BAND_COLOUR, alpha=0.5, lw=0, label=label)
 
 
 def _limit_lines(ax, x: np.ndarray, thresholds: np.ndarray) -> None:
@@ -118,8 +112,8 @@ def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exce
     ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(5, 1))
     x = grid.x_m
     if grid.has_band:
-        _band(ax, x, grid.lower_m * MM, grid.upper_m * MM, _band_label(quantiles))
-    _signal(ax, x, grid.u_m * MM, color=LINE_COLOUR, label='reconstruction')
+        _band(ax, x, grid.lower_m, grid.upper_m, _band_label(quantiles))
+    _signal(ax, x, grid.u_m, MM, color=LINE_COLOUR, label='reconstruction')
     xe, slowest, _ = envelope(x, grid.speed_mps)
     _limit_lines(ax, xe, limits.at(slowest))  # the limits fall with speed: the loosest per bin
     for level in LEVELS:
@@ -135,7 +129,7 @@ def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exce
     ax.set_ylabel(f'irregularity {limits.band.upper()} [mm]')
     ax.grid(alpha=0.3)
     ax.legend(loc='upper right', fontsize=8, ncol=4)
-    _signal(ax_v, x, grid.speed_mps * 3.6, color='0.3')
+    _signal(ax_v, x, grid.speed_mps, 3.6, color='0.3')
     ax_v.set_ylabel('speed [km/h]')
     ax_v.set_xlabel('chainage [m]')
     ax_v.grid(alpha=0.3)

@@ -15,6 +15,7 @@ import numpy as np
 
 SECTION_M = 200.0
 DX_M = 0.25
+BLOCK = 1 << 20  # cells per bincount
 
 
 @dataclass(frozen=True)
@@ -98,18 +99,21 @@ def grid_sections(x: np.ndarray, u: np.ndarray, valid: np.ndarray,
     the section speeds from ``speeds`` (NaN without)."""
     if x.size == 0:
         return Sections(length_m, *(np.zeros(0) for _ in range(4)))
-    sec = np.floor(x / length_m).astype(np.int64)
-    first = sec[0]
-    n_sec = sec[-1] - first + 1
-    which = sec[valid] - first
-    n = np.bincount(which, minlength=n_sec).astype(float)
-    s1 = np.bincount(which, u[valid], minlength=n_sec)
-    s2 = np.bincount(which, u[valid] ** 2, minlength=n_sec)
+    first = int(np.floor(x[0] / length_m))
+    n_sec = int(np.floor(x[-1] / length_m)) - first + 1
+    n, s1, s2 = np.zeros(n_sec), np.zeros(n_sec), np.zeros(n_sec)
+    for lo in range(0, x.size, BLOCK):  # in blocks: a few MB at a time, whatever the run
+        ok = valid[lo:lo + BLOCK]
+        which = np.floor(x[lo:lo + BLOCK][ok] / length_m).astype(np.int64) - first
+        values = u[lo:lo + BLOCK][ok]
+        n += np.bincount(which, minlength=n_sec)
+        s1 += np.bincount(which, values, minlength=n_sec)
+        s2 += np.bincount(which, values ** 2, minlength=n_sec)
     coverage = n * dx / length_m
     with np.errstate(invalid='ignore', divide='ignore'):
         mean = s1 / n
         sd = np.sqrt(np.maximum(s2 / n - mean ** 2, 0.0))
-    speed = np.full(n_sec, np.nan) if speeds is None else speeds.means(int(first), int(n_sec))
+    speed = np.full(n_sec, np.nan) if speeds is None else speeds.means(first, n_sec)
     short = coverage < min_coverage
     sd[short] = np.nan
     kept = np.flatnonzero(~short)
