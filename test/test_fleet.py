@@ -236,3 +236,24 @@ def test_local_cluster_listens_on_loopback_only():
     ours = [row.split()[3] for row in listing if any(f'pid={p},' in row for p in pids)]
     assert len(ours) >= 5  # scheduler (2), 2 workers, 2 nannies at least
     assert all(local.startswith('127.0.0.1:') for local in ours), ours
+
+
+def test_a_defect_growing_past_the_threshold_is_not_new(ingested, series, tmp_path):
+    """Detected from 0.7 x the alert limit (5.6 mm), the growing dip (4.2 -> 7.4 mm in D1) is
+    first found in a later pass: not NEW, and its trend still uses every pass."""
+    import shutil
+
+    from railgsa_ros.fleet.condition import update_line
+    from railgsa_ros.review.limits import en13848_limits
+
+    _, path = ingested
+    copy = shutil.copy(path, tmp_path / 'copy.duckdb')
+    con = db.connect(copy)
+    update_line(con, 'L1', '1', 0.25, en13848_limits('d1'), None, fraction=0.7)
+    rows = con.execute('SELECT new, passes, first_seen FROM defects WHERE abs(x_m - ?) < 3',
+                       [_frame(series.truth_x['grow'])]).fetchall()
+    con.close()
+    assert len(rows) == 1
+    new, passes, first_seen = rows[0]
+    assert not new and passes == 5
+    assert first_seen > db.timestamp(DEFAULT_START_NS + DAYS[0] * DAY_NS + DAY_NS)
