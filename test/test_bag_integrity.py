@@ -255,3 +255,16 @@ def test_recover_counts_a_finished_file_without_statistics(tmp_path, capsys) -> 
     with AnyReader([bag]) as reader:
         assert reader.message_count == 1501
         assert [bytes(r) for _, _, r in reader.messages()] == messages[:1001] + messages[2000:]
+
+
+def test_recover_a_recorders_partial_file(tmp_path, capsys) -> None:
+    """After a write error the recorder renames the file in progress ``*.mcap.partial``:
+    recover turns its complete records into ``*.mcap`` and lists it."""
+    stamps, _, messages = imu_messages(2500)
+    bag = tmp_path / 'rec'
+    record(bag, messages, stamps, compress=True)  # flushed after messages 1000 and 2000
+    (bag / 'rec_0.mcap').rename(bag / 'rec_0.mcap.partial')  # as BagRecorder._abandon
+    assert main(['recover', str(bag)]) == 0
+    assert capsys.readouterr().out == 'rec_0.mcap: recovered, 2001 messages\n'
+    with AnyReader([bag]) as reader:
+        assert [bytes(r) for _, _, r in reader.messages()] == messages[:2001]
