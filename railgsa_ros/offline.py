@@ -2,15 +2,17 @@
 
 ``railgsa invert``, ``invert --bands`` and ``railgsa review`` all run through :class:`Driver`:
 pieces of the bag (``bag.iter_imu``, about 65,536 IMU samples each) go to the nominal
-``InversionPipeline`` (irregularity_node's core) and, with uncertain parameters, to an
-``UncertaintyStream`` (uncertainty_node's core, windows deferred). The band lags the nominal
-output by the bank's longer filter delay; the driver holds the nominal samples until their band
-arrives and hands both out together as :class:`Step` objects. Memory: one piece, the delay lines
-and the odometry of the pending samples, whatever the length of the run.
+``InputPolicy`` (irregularity_node's core: every input decision, then the pipeline) and, with
+uncertain parameters, to an ``UncertaintyStream`` (uncertainty_node's core, its own policy over
+the bank, windows deferred), each piece's odometry first, then its IMU samples. The band lags
+the nominal output by the bank's longer filter delay; the driver holds the nominal samples
+until their band arrives and hands both out together as :class:`Step` objects. Memory: one
+piece, the delay lines and the odometry of the pending samples, whatever the length of the run.
 
-Speed: the newest odometry sample at or before each stamp, times the odometry scale (1 unless
-GNSS corrected it, ``railgsa_ros.location``); the configured speed when the bag has no odometry
-topic or ``speed_override`` is set.
+Speed: the policy's (the newest odometry sample at or before each stamp within
+odom_timeout_s, else unknown: INVALID outputs), the odometry times its scale (1 unless GNSS
+corrected it, ``railgsa_ros.location``); a fixed speed only when the options say so
+(``use_odom`` false with ``speed_mps``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 from railgsa_ros.bag import ImuStream, open_bag
 from railgsa_ros.bag.reader import iter_imu
 from railgsa_ros.errors import InputError
-from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+from railgsa_ros.inverse.pipeline import Output
+from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.location import Location, Reference, gnss_pass
 from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream
 from railgsa_ros.uq.distributions import Distribution
@@ -69,58 +72,17 @@ def nominal_rate_hz(piece: ImuStream, source: Source) -> float:
     return 1e9 / float(np.median(steps))
 
 
-def noise_variance(piece: ImuStream, axis: str, default_std_mps2: float) -> float | None:
-    """Median recorded accelerometer variance ((m/s^2)^2) on the vertical axis of a piece, None
-    where none is recorded."""
-    var = piece.accel_variance(default_std_mps2 ** 2)[:, 'xyz'.index(axis[-1])]
-    known = var[np.isfinite(var)]
-    return float(np.median(known)) if known.size else None
-
-
-class HeldSpeed:
-    """Speed (m/s) at stamps: the newest odometry sample at or before each (the first one before
-    the odometry starts), times ``scale``; ``default_mps`` when there is no odometry. Keeps only
-    the odometry the samples still in the delay lines need (``forget``)."""
-
-    def __init__(self, default_mps: float, use_odometry: bool, scale: float = 1.0) -> None:
-        self.default_mps = float(default_mps)
-        self.use_odometry = use_odometry
-        self.scale = float(scale)
-        self._stamps = np.zeros(0, np.int64)
-        self._speeds = np.zeros(0)
-
-    def add(self, stamps_ns: np.ndarray, speeds_mps: np.ndarray) -> None:
-        """Odometry samples in bag order."""
-        if not self.use_odometry or np.size(stamps_ns) == 0:
-            return
-        stamps = np.concatenate([self._stamps, stamps_ns])
-        order = np.argsort(stamps, kind='stable')
-        self._stamps = stamps[order]
-        self._speeds = np.concatenate([self._speeds, speeds_mps])[order]
-
-    def at(self, stamps_ns: np.ndarray) -> np.ndarray:
-        """Speeds (m/s) at stamps (ns)."""
-        if not self.use_odometry or self._stamps.size == 0:
-            return np.full(np.shape(stamps_ns), self.default_mps)
-        idx = np.searchsorted(self._stamps, stamps_ns, side='right') - 1
-        return self._speeds[np.clip(idx, 0, None)] * self.scale
-
-    def forget(self, before_ns: int) -> None:
-        """Drop the odometry no stamp at or after ``before_ns`` needs."""
-        keep = max(int(np.searchsorted(self._stamps, before_ns, side='right')) - 1, 0)
-        self._stamps, self._speeds = self._stamps[keep:], self._speeds[keep:]
-
-
 @dataclass(frozen=True)
 class Step:
-    """Emitted samples (K,): IMU stamps (ns), chainage (m), nominal reconstruction u (m), speed
-    (m/s); with uncertain parameters the band of the same stamps, the bank outputs (P, K) m and
-    the band's sensor std (K,) m."""
+    """Emitted samples (K,): IMU stamps (ns), chainage (m), nominal reconstruction u (m, NaN
+    where INVALID), speed (m/s), quality (Quality codes); with uncertain parameters the band of
+    the same stamps, the bank outputs (P, K) m and the band's sensor std (K,) m."""
 
     stamps_ns: np.ndarray
     chainage_m: np.ndarray
     u_m: np.ndarray
     speed_mps: np.ndarray
+    quality: np.ndarray
     band: Band | None = None
     bank_u_m: np.ndarray | None = None
     sensor_std_m: np.ndarray | None = None
@@ -130,23 +92,27 @@ class Step:
 
 
 class Driver:
-    """Chunks of a bag in, Steps out: the nominal pipeline and, with ``dists``, the uncertainty
-    stream (windows deferred to ``windows()``), fed the same samples; their outputs joined on the
-    stamps (the band comes later by the difference of the filter delays)."""
+    """Chunks of a bag in, Steps out: the nominal policy and, with ``dists``, the uncertainty
+    stream (windows deferred to ``windows()``), fed the same samples in the same order, so that
+    their decisions (and stamps, qualities) are the same; their outputs joined on the stamps
+    (the band comes later by the difference of the filter delays). ``options``: the policies'
+    input options; ``speed_scale``: factor on the odometry speeds (GNSS-corrected wheel
+    diameter)."""
 
     def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
-                 dists: Mapping[str, Distribution] | None, noise_variance: float | None,
-                 speed: HeldSpeed) -> None:
+                 dists: Mapping[str, Distribution] | None, options: PolicyOptions,
+                 speed_scale: float = 1.0) -> None:
         self.config = config
-        self.nominal = InversionPipeline(config.inversion, vehicle, noise_variance)
-        self.bank = (UncertaintyStream(config, vehicle, dists, noise_variance, defer=True)
+        self.options = options
+        self.nominal = InputPolicy(config.inversion, vehicle, options=options)
+        self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True)
                      if dists is not None else None)
-        self.speed = speed
-        self._pending: list[tuple[Output, np.ndarray]] = []  # nominal samples awaiting a band
+        self.speed_scale = float(speed_scale)
+        self._pending: list[Output] = []  # nominal samples awaiting a band
 
     @property
     def counters(self) -> dict[str, int]:
-        """The nominal pipeline's counters (rejections by reason, gaps, resets, emitted)."""
+        """The nominal policy's counters (rejections by reason, gaps, resets, quality, ...)."""
         return self.nominal.counters
 
     @property
@@ -156,56 +122,64 @@ class Driver:
 
     def push(self, piece: ImuStream) -> Step:
         """One piece of the bag: the samples that came out (maybe none)."""
-        self.speed.add(piece.odom_stamps_ns, piece.speed_mps)
-        if piece.stamps_ns.size == 0:
-            return self._join(None, None)
-        speed = self.speed.at(piece.stamps_ns)
-        args = (piece.stamps_ns, vertical(piece.accel, self.config.inversion.accel_axis), speed,
-                piece.frame_ids)
-        out = self.nominal.push(*args)
-        update = self.bank.push(*args) if self.bank is not None else None
-        return self._join(out, update)
+        outs, updates = [], []
+        if self.options.use_odom and piece.odom_stamps_ns.size:
+            odometry = (piece.odom_stamps_ns, piece.speed_mps * self.speed_scale)
+            outs.append(self.nominal.odometry(*odometry))
+            if self.bank is not None:
+                updates.append(self.bank.odometry(*odometry))
+        if piece.stamps_ns.size:
+            imu = (piece.stamps_ns, piece.accel, piece.frame_ids, piece.covariance)
+            outs.append(self.nominal.imu(*imu))
+            if self.bank is not None:
+                updates.append(self.bank.imu(*imu))
+        return self._join(outs, updates)
 
     def flush(self) -> Step:
         """End of the run: every pending sample."""
-        return self._join(self.nominal.flush(),
-                          self.bank.flush() if self.bank is not None else None)
+        return self._join([self.nominal.flush()],
+                          [self.bank.flush()] if self.bank is not None else [])
 
     def windows(self) -> list[Sensitivity]:
         """The sensitivity records of the closed windows (after ``flush``: all of them)."""
         return self.bank.analyze_deferred() if self.bank is not None else []
 
-    def _join(self, out: Output | None, update) -> Step:
-        if out is not None and len(out):
-            self._pending.append((out, self.speed.at(out.stamps_ns)))
-            self.speed.forget(int(out.stamps_ns[-1]))  # later outputs come after it
-        waiting = sum(len(o) for o, _ in self._pending)
-        ready = waiting if self.bank is None else (0 if update is None else len(update.band))
+    def _join(self, outs: list[Output], updates: list) -> Step:
+        self._pending += [o for o in outs if len(o)]
+        waiting = sum(len(o) for o in self._pending)
+        band = Band.concat([u.band for u in updates]) if updates else None
+        ready = waiting if self.bank is None else (0 if band is None else len(band))
         if ready > waiting:
             raise AssertionError('band samples without irregularity samples')
         nominal = _take(self._pending, ready)
         if self.bank is None or ready == 0:
             return Step(*nominal)
-        if not np.array_equal(update.band.stamps_ns, nominal[0]):
-            raise AssertionError('band and irregularity stamps differ')
-        return Step(*nominal, update.band, update.bank_u_m, update.sensor_std_m)
+        if not (np.array_equal(band.stamps_ns, nominal[0])
+                and np.array_equal(band.quality, nominal[4])):
+            raise AssertionError('band and irregularity samples differ')
+        bank_u = np.concatenate([u.bank_u_m for u in updates], axis=1)
+        sensor = np.concatenate([u.sensor_std_m for u in updates])
+        return Step(*nominal, band, bank_u, sensor)
 
 
-def _take(pending: list[tuple[Output, np.ndarray]], count: int) -> tuple[np.ndarray, ...]:
-    """The first ``count`` pending samples (stamps, chainage, u, speed), removed from
+def _take(pending: list[Output], count: int) -> tuple[np.ndarray, ...]:
+    """The first ``count`` pending samples (stamps, chainage, u, speed, quality), removed from
     ``pending``."""
+    fields = ('stamps_ns', 'chainage_m', 'u_m', 'speed_mps', 'quality')
     parts: list[tuple[np.ndarray, ...]] = []
     while count > 0:
-        out, speed = pending[0]
+        out = pending[0]
         n = min(count, len(out))
-        parts.append((out.stamps_ns[:n], out.chainage_m[:n], out.u_m[:n], speed[:n]))
+        parts.append(tuple(getattr(out, f)[:n] for f in fields))
         if n == len(out):
             pending.pop(0)
         else:
-            pending[0] = (Output(out.stamps_ns[n:], out.chainage_m[n:], out.u_m[n:]), speed[n:])
+            pending[0] = Output(*(getattr(out, f)[n:] for f in
+                                  ('stamps_ns', 'chainage_m', 'u_m', 'quality', 'speed_mps')))
         count -= n
     if not parts:
-        return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0))
+        return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0),
+                np.zeros(0, np.uint8))
     return tuple(np.concatenate(cols) for cols in zip(*parts, strict=True))
 
 

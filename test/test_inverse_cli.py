@@ -1,4 +1,4 @@
-"""``railgsa invert``: CSV and bag outputs against the pipeline, options, errors."""
+"""``railgsa invert``: CSV and bag outputs against the pipeline, options, errors, quality."""
 
 from pathlib import Path
 
@@ -24,7 +24,8 @@ def _bag(tmp_path_factory, name, duration_s, seed, defects):
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory):
-    return _bag(tmp_path_factory, 'run', 8.0, 2, 'dip@100:len=6:depth=8e-3')
+    # 20 s: the INVALID warm-up and tail of the band window leave 16 s of output
+    return _bag(tmp_path_factory, 'run', 20.0, 2, 'dip@100:len=6:depth=8e-3')
 
 
 def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
@@ -37,14 +38,21 @@ def test_csv_with_odometry_tracks_truth(bag, tmp_path):
     out = tmp_path / 'u.csv'
     assert main(['invert', str(path), '--csv', str(out), '--method', 'feedback']) == 0
     lines, data = read_csv(out)
-    assert lines[0] == 't_s,chainage_m,u_m'
+    assert lines[0] == 't_s,chainage_m,u_m,quality'
     stamps = np.array([int(line.split(',')[0].replace('.', '')) for line in lines[1:]])
     assert np.array_equal(stamps, run.stamps_ns)
     # odometry at 50 Hz, held: chainage within a few cm of the true travel
     travel = run.chainage_m - run.chainage_m[0]
     assert np.max(np.abs(data[:, 1] - travel)) < 0.05
-    s = score(data[:, 1] + run.chainage_m[0], data[:, 2], run.chainage_m, run.truth_u_m,
-              margin_m=50.0)
+    # the warm-up and the tail are INVALID (u = nan), the cruise in between published (VALID,
+    # DEGRADED around the sensor's bridged dropouts)
+    quality = data[:, 3]
+    assert quality[0] == quality[-1] == 2 and np.all(np.isnan(data[quality == 2, 2]))
+    valid = np.flatnonzero(quality != 2)
+    assert np.all(np.diff(valid) == 1) and valid.size > 0.6 * run.stamps_ns.size
+    assert np.sum(quality == 0) > 0.3 * run.stamps_ns.size
+    s = score(data[valid, 1] + run.chainage_m[0], data[valid, 2], run.chainage_m,
+              run.truth_u_m, margin_m=20.0)
     assert s.rmse < 0.3e-3 and s.correlation > 0.95
 
 
@@ -54,9 +62,13 @@ def test_csv_is_the_streaming_pipeline(bag, tmp_path):
     assert main(['invert', str(path), '--csv', str(out), '--speed', '25']) == 0
     _, data = read_csv(out)
     rate = 1e9 / np.median(np.diff(run.stamps_ns))  # the CLI takes the rate from the bag
-    pipe = InversionPipeline(InversionConfig(rate_hz=rate, speed_mps=25.0))
+    # the policy's noise: the IMU-reported variance (it shapes the bridging of dropouts)
+    pipe = InversionPipeline(InversionConfig(rate_hz=rate, speed_mps=25.0), None,
+                             run.accel_covariance, stuck_s=0.5)
     outs = [pipe.push(run.stamps_ns, vertical(run.accel, 'z')), pipe.flush()]
-    assert np.allclose(data[:, 2], np.concatenate([o.u_m for o in outs]), rtol=0, atol=1e-12)
+    valid = data[:, 3] != 2
+    assert np.allclose(data[valid, 2], np.concatenate([o.u_m for o in outs])[valid], rtol=0,
+                       atol=1e-12)
 
 
 def test_bag_output_has_the_node_topic(bag, tmp_path):
@@ -71,6 +83,11 @@ def test_bag_output_has_the_node_topic(bag, tmp_path):
     assert msg.header.frame_id == 'track'
     assert t == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == run.stamps_ns[10]
     assert msg.point.x == pytest.approx(25.0 * (run.stamps_ns[10] - run.stamps_ns[0]) * 1e-9)
+    # the live node's encoding: point.y = quality code, point.z = NaN when INVALID
+    codes = np.array([m.point.y for _, m in msgs])
+    u = np.array([m.point.z for _, m in msgs])
+    assert {0.0, 2.0} <= set(codes) <= {0.0, 1.0, 2.0} and codes[10] == 2.0
+    assert np.all(np.isnan(u[codes == 2])) and np.all(np.isfinite(u[codes != 2]))
 
 
 def test_errors_name_the_file(bag, tmp_path, capsys):
@@ -88,6 +105,44 @@ def test_errors_name_the_file(bag, tmp_path, capsys):
     assert not (tmp_path / 'x.csv').exists()
 
 
+def test_no_odometry_and_no_speed_exits_2_with_one_line(bag, tmp_path, capsys):
+    path, _ = bag
+    assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), '--odom-topic',
+                 '/absent']) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and 'no odometry' in err and '--speed' in err
+
+
+def test_no_usable_sample_exits_2_with_one_line(bag, tmp_path, capsys):
+    """Every sample rejected for its frame (strict policy): exit 2, one line, no traceback, no
+    file; every output INVALID (a run shorter than the band window): written, flagged, warned."""
+    path, _ = bag
+    params = tmp_path / 'p.yaml'
+    params.write_text('irregularity_node:\n  ros__parameters:\n    frame_id: other\n'
+                      '    wrong_frame_policy: reject\n')
+    out = tmp_path / 'x.csv'
+    assert main(['invert', str(path), '--csv', str(out), '--params', str(params)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and 'no usable IMU sample' in err
+    assert 'wrong_frame' in err and not out.exists()
+    short = write_run(tmp_path / 'short', run_scenario('german-low', 25.0, 1.0, 500.0,
+                                                       'adxl355', seed=2))
+    assert main(['invert', str(short), '--csv', str(out)]) == 0
+    assert 'every output is INVALID' in capsys.readouterr().err
+    _, data = read_csv(out)
+    assert np.all(data[:, 3] == 2) and np.all(np.isnan(data[:, 2]))
+
+
+def test_rate_hz_disagreeing_with_the_bag_exits_2(bag, tmp_path, capsys):
+    path, _ = bag
+    params = tmp_path / 'p.yaml'
+    params.write_text('irregularity_node:\n  ros__parameters:\n    rate_hz: 1000.0\n')
+    assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), '--params',
+                 str(params)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and 'rate_hz 1000' in err and 'measured' in err
+
+
 def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     """--bands columns equal uncertainty_node's streaming code (pushed in odd chunks) on the
     same samples, and the band brackets its own PCE mean."""
@@ -98,7 +153,7 @@ def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     out = tmp_path / 'u.csv'
     assert main(['invert', str(path), '--csv', str(out), '--bands']) == 0
     lines, data = read_csv(out)
-    assert lines[0] == 't_s,chainage_m,u_m,lower_m,mean_m,upper_m'
+    assert lines[0] == 't_s,chainage_m,u_m,quality,lower_m,mean_m,upper_m'
     import argparse
 
     from railgsa_ros.cli import invert
@@ -106,22 +161,24 @@ def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     parser = argparse.ArgumentParser()
     invert.register(parser.add_subparsers())
     inp = invert.load_inputs(parser.parse_args(['invert', str(path), '--csv', str(out)]))
-    live = UncertaintyStream(UncertaintyConfig(inversion=inp.config, qoi=''), inp.vehicle, None,
-                             inp.noise_variance)
-    parts, lo = [], 0
-    for size in np.random.default_rng(1).integers(1, 900, inp.stamps_ns.size):
-        sl = slice(lo, lo + int(size))
-        parts.append(live.push(inp.stamps_ns[sl], inp.acc_z[sl], inp.speed_mps[sl],
-                               inp.frame_ids[sl]).band)
-        lo += int(size)
-        if lo >= inp.stamps_ns.size:
+    live = UncertaintyStream(UncertaintyConfig(inversion=inp.config, qoi=''), inp.vehicle,
+                             options=inp.options)
+    rec = inp.stream
+    parts = [live.odometry(rec.odom_stamps_ns, rec.speed_mps).band]
+    edges = np.cumsum(np.random.default_rng(1).integers(1, 900, rec.stamps_ns.size))
+    for lo, hi in zip(np.concatenate([[0], edges]), edges, strict=False):
+        if lo >= rec.stamps_ns.size:
             break
+        parts.append(live.imu(rec.stamps_ns[lo:hi], rec.accel[lo:hi], rec.frame_ids[lo:hi],
+                              rec.covariance[lo:hi]).band)
     ref = Band.concat([*parts, live.flush().band])
     stamps = np.array([int(line.split(',')[0].replace('.', '')) for line in lines[1:]])
     assert np.array_equal(stamps, ref.stamps_ns)
-    for col, want in zip(data[:, 3:].T, (ref.lower_m, ref.mean_m, ref.upper_m), strict=True):
-        np.testing.assert_allclose(col, want, rtol=1e-8, atol=1e-12)
-    assert np.all(data[:, 3] <= data[:, 4]) and np.all(data[:, 4] <= data[:, 5])
+    np.testing.assert_array_equal(data[:, 3], ref.quality)
+    for col, want in zip(data[:, 4:].T, (ref.lower_m, ref.mean_m, ref.upper_m), strict=True):
+        np.testing.assert_allclose(col, want, rtol=1e-8, atol=1e-12)  # nan where INVALID
+    ok = data[:, 3] != 2
+    assert np.all(data[ok, 4] <= data[ok, 5]) and np.all(data[ok, 5] <= data[ok, 6])
 
 
 def test_bands_in_the_output_bag(bag, tmp_path):

@@ -136,5 +136,8 @@ def test_distance_band_beats_the_time_domain_band_at_variable_speed():
     g = _run_grid(ChainageGrid.for_config(cfg),
                   Output(out.stamps_ns, chain, out.u_m, out.quality, out.speed_mps))
     distance = error(g.chainage_m, g.u_m)
-    assert distance <= 0.05e-3
-    assert time_domain >= 2 * distance
+    # 0.068 mm measured: outputs are VALID from where the band window's taps beyond the
+    # restart hold < 1e-3 of its L1 norm (inverse.pipeline.WINDOW_TOLERANCE), 0.05 mm when the
+    # whole FIR had to clear the restart (which left runs of 15 s without a valid output)
+    assert distance <= 0.08e-3
+    assert time_domain >= 1.5 * distance  # measured 1.74 (2.0 with the whole FIR)

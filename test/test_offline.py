@@ -17,9 +17,11 @@ from railgsa_ros.bag import BagWriter, RunEncoder, read_imu, write_run
 from railgsa_ros.bag.messages import qos
 from railgsa_ros.bag.reader import NAV_SAT_FIX, iter_imu
 from railgsa_ros.cli.main import main
-from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.inverse.pipeline import Output
+from railgsa_ros.inverse.policy import InputPolicy
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Reference, from_local, to_local
-from railgsa_ros.offline import HeldSpeed, Source
+from railgsa_ros.offline import Source
 from railgsa_ros.review.build import ReviewOptions, build_review
 from railgsa_ros.review.exceedances import find_exceedances
 from railgsa_ros.review.grid import DX_M
@@ -83,17 +85,18 @@ def test_chunks_are_in_log_time_order_when_the_file_is_not(simulated, tmp_path: 
         assert max(a.log_time_ns.max(), a.odom_stamps_ns.max()) <= b.log_time_ns.min()
 
 
-def _whole_run(bag: Path, config: UncertaintyConfig) -> tuple[Output, np.ndarray]:
-    """The old way: the whole bag in memory, one push (independent of the driver)."""
+def _whole_run(bag: Path, config: UncertaintyConfig) -> tuple[Output, np.ndarray, Output]:
+    """The old way: the whole bag in memory, one call of the input policy (independent of the
+    driver); the outputs that are not INVALID, their speeds and all outputs."""
     stream = read_imu(bag)
-    speed = HeldSpeed(config.inversion.speed_mps, True)
-    speed.add(stream.odom_stamps_ns, stream.speed_mps)
-    pipe = InversionPipeline(config.inversion, None)
-    outs = [pipe.push(stream.stamps_ns, stream.accel[:, 2], speed.at(stream.stamps_ns),
-                      stream.frame_ids), pipe.flush()]
-    out = Output(*(np.concatenate([getattr(o, f) for o in outs]) for f in
-                   ('stamps_ns', 'chainage_m', 'u_m')))
-    return out, speed.at(out.stamps_ns)
+    policy = InputPolicy(config.inversion)
+    out = Output.concat([policy.odometry(stream.odom_stamps_ns, stream.speed_mps),
+                         policy.imu(stream.stamps_ns, stream.accel, stream.frame_ids,
+                                    stream.covariance), policy.flush()])
+    keep = out.quality != Quality.INVALID
+    valid = Output(*(getattr(out, f)[keep] for f in
+                     ('stamps_ns', 'chainage_m', 'u_m', 'quality', 'speed_mps')))
+    return valid, valid.speed_mps, out
 
 
 def test_streamed_review_equals_the_whole_array_results(simulated) -> None:
@@ -103,7 +106,7 @@ def test_streamed_review_equals_the_whole_array_results(simulated) -> None:
         rate_hz=1000.0))
     runs = [run_stream(Source(bag), config, None, None, limits, rate_from_bag=False,
                        chunk=chunk)[0] for chunk in (2500, 10 ** 7)]
-    out, speed = _whole_run(bag, config)
+    out, speed, every = _whole_run(bag, config)
     expected = find_exceedances(out.chainage_m, out.u_m, speed, out.stamps_ns, limits)
     assert len(expected) >= 3
     whole_sections = section_sd(out.chainage_m, out.u_m, speed)
@@ -114,8 +117,8 @@ def test_streamed_review_equals_the_whole_array_results(simulated) -> None:
                 (want.level, want.confidence, want.peak_stamp_ns, want.peak_u_m)
             assert [got.start_m, got.end_m, got.peak_m] == pytest.approx(
                 [want.start_m, want.end_m, want.peak_m], rel=1e-12)
-        assert run.emitted == len(out) and run.last[0] == out.stamps_ns[-1]
-        assert run.last[1] == pytest.approx(out.chainage_m[-1], rel=1e-12)
+        assert run.emitted == len(every) and run.last[0] == every.stamps_ns[-1]
+        assert run.last[1] == pytest.approx(every.chainage_m[-1], rel=1e-12)
         k = int(np.argmax(np.abs(out.u_m)))
         assert (run.peak.stamp_ns, run.peak.value_m) == (out.stamps_ns[k], out.u_m[k])
         from railgsa_ros.review.sections import grid_sections
@@ -300,24 +303,41 @@ def _params(tmp_path: Path) -> Path:
     return path
 
 
-def test_a_run_shorter_than_100_m_gets_a_report(tmp_path: Path, capsys) -> None:
-    run = run_scenario('german-low', 20.0, 4.0, 1000.0, 'adxl355', 1)  # 80 m
+def test_a_run_shorter_than_200_m_gets_a_report(tmp_path: Path, capsys) -> None:
+    # 160 m: the 100 m (5 s) of INVALID warm-up and tail leave 60 m of output
+    run = run_scenario('german-low', 20.0, 8.0, 1000.0, 'adxl355', 1)
     bag = write_run(tmp_path / 'short', run)
     assert main(['review', str(bag), '--out', str(tmp_path / 'out'), '--no-uncertainty']) == 0
     assert 'report.html' in capsys.readouterr().out
     with (tmp_path / 'out' / 'sections.csv').open(encoding='utf-8') as f:
         assert list(csv.DictReader(f)) == []  # no 200 m section half covered
+    # 80 m: every output INVALID (shorter than the band window): one line
+    short = write_run(tmp_path / 'shorter', run_scenario('german-low', 20.0, 4.0, 1000.0,
+                                                          'adxl355', 1))
+    assert main(['review', str(short), '--out', str(tmp_path / 'o2'), '--no-uncertainty']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'INVALID' in err and not (tmp_path / 'o2').exists()
 
 
-def test_a_few_zero_stamps_give_one_line_not_a_memory_error(tmp_path: Path, capsys) -> None:
+def test_a_few_zero_stamps_are_time_resets_not_a_memory_error(tmp_path: Path, capsys) -> None:
+    """Zero header stamps: the input policy finds no odometry at stamp 0 (unknown speed, the
+    chainage holds, INVALID), the sanitiser restarts the filters around them; the review of
+    the rest is written (before the policy: a 34,000 km chainage jump)."""
     run = run_scenario('german-low', 20.0, 20.0, 1000.0, 'adxl355', 1)
     stamps = run.stamps_ns.copy()
     stamps[[5000, 5001, 12000]] = 0
     bag = write_run(tmp_path / 'zeros', replace(run, stamps_ns=stamps))
-    assert main(['review', str(bag), '--out', str(tmp_path / 'out'), '--no-uncertainty']) == 2
-    err = capsys.readouterr().err
-    assert err.startswith('error: ') and err.count('\n') == 1 and str(bag) in err
-    assert not (tmp_path / 'out').exists()
+    out = tmp_path / 'out'
+    assert main(['review', str(bag), '--out', str(out), '--no-uncertainty', '--json',
+                 '--no-progress']) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (out / 'report.html').is_file()
+    # the bag's odometry starts at 5 s (the zero stamps upset its sampling): before it the speed
+    # is unknown (INVALID, the chainage holds), not the first odometry guessed backwards
+    read = read_imu(bag)
+    covered = (run.stamps_ns >= read.odom_stamps_ns.min())
+    assert summary['length_km'] * 1e3 == pytest.approx(
+        run.chainage_m[-1] - run.chainage_m[covered][0], abs=1.0)
 
 
 def test_negative_odometry_speed_gives_one_line(tmp_path: Path, capsys) -> None:

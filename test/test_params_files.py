@@ -6,9 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.config import ros_parameters
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.scenario import run_scenario
 
 KNOWN = ('method', 'gain', 'band')
 
@@ -85,7 +87,7 @@ def test_loader_optional_section() -> None:
     ('/**:\n  ros__parameters:\n    k_s: 1.0e+6\n', 'k_s: a vehicle parameter'),
     ('irregularity_node:\n  ros__parameters:\n    vehicle_file: v.yaml\n',
      'vehicle_file: a vehicle parameter'),
-    ('irregularity_node:\n  ros__parameters:\n    stuck_s: 2.0\n', 'stuck_s: a live-node'),
+    ('irregularity_node:\n  ros__parameters:\n    use_odom: false\n', 'use_odom: a live-node'),
     ('', 'the file is empty'),
 ])
 def test_invert_params_file_refused_naming_key_and_file(bag, tmp_path, capsys, text,
@@ -127,8 +129,12 @@ def test_shared_file_applies_and_transport_keys_are_accepted(bag, tmp_path) -> N
                               np.loadtxt(c, delimiter=',', skiprows=1))
 
 
-def test_shipped_config_files_are_accepted(bag, tmp_path) -> None:
+def test_shipped_config_files_are_accepted(tmp_path) -> None:
     repo = Path(__file__).resolve().parents[1] / 'config'
+    # 1 kHz: the rate_hz of config/irregularity.yaml (invert refuses a given rate_hz that
+    # disagrees with the bag's)
+    bag = write_run(tmp_path / 'run', run_scenario('german-low', 25.0, 3.0, 1000.0, 'adxl355',
+                                                   seed=4))
     assert main(['invert', str(bag), '--csv', str(tmp_path / 'u.csv'), '--params',
                  str(repo / 'irregularity.yaml'), '--bands', '--uncertainty-params',
                  str(repo / 'uncertainty_node.yaml')]) == 0

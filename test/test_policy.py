@@ -220,7 +220,8 @@ def test_warm_up_after_a_dropout_reset_is_invalid_and_the_valid_rest_is_accurate
     out, policy = invert(keep)
     ref, _ = invert(np.ones(run.stamps_ns.size, bool))
     assert policy.counters['reset'] == 1
-    d, warm = policy.delay_samples, policy.delay_samples + round(cfg.taper_s * cfg.rate_hz)
+    d = int(policy.pipeline.window_half_width(np.array([20.0]))[0])  # the band window
+    warm = d + round(cfg.taper_s * cfg.rate_hz)
     after = np.flatnonzero(out.stamps_ns > run.stamps_ns[20199])
     assert np.all(out.quality[after[:warm]] == Quality.INVALID)
     before = np.flatnonzero(out.stamps_ns < run.stamps_ns[20000])
@@ -240,7 +241,7 @@ def test_bridged_stretch_degrades_its_window():
     out = Output.concat([policy.imu(run.stamps_ns[keep], run.accel[keep], None,
                                     _covariance(run, int(keep.sum()))), policy.flush()])
     assert policy.counters['bridged'] > 0
-    d = policy.delay_samples
+    d = int(policy.pipeline.window_half_width(np.array([20.0]))[0])
     t_gap = run.stamps_ns[[19999, 20100]]
     reach = d * 1e6 - 2e6  # D periods of 1 ms, less the stamp jitter
     near = (out.stamps_ns > t_gap[0] - reach) & (out.stamps_ns < t_gap[1] + reach)

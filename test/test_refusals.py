@@ -98,7 +98,10 @@ def test_kalman_without_a_steady_state_filter_is_one_line(bag, tmp_path, capsys)
                  str(vehicle)]) == 2
     assert one_error_line(capsys).startswith('error: method kalman: no steady-state filter')
     assert main(['invert', str(bag), '--csv', str(out), '--vehicle', str(vehicle)]) == 0
-    assert np.isfinite(np.loadtxt(out, delimiter=',', skiprows=1)).all()
+    data = np.loadtxt(out, delimiter=',', skiprows=1)  # t_s, chainage_m, u_m, quality
+    assert np.isfinite(data[:, [0, 1, 3]]).all()
+    # u is NaN exactly where the policy marks the output INVALID (2), never from a blow-up
+    np.testing.assert_array_equal(np.isnan(data[:, 2]), data[:, 3] == 2)
 
 
 # ---------------------------------------------------------------------------- gsa arguments

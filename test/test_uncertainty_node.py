@@ -33,7 +33,8 @@ def run() -> Any:
 
 
 def imu_messages(stamps_ns: np.ndarray, accel_z: np.ndarray) -> list:
-    """sensor_msgs/Imu in imu_link, gravity included, covariance marked absent."""
+    """sensor_msgs/Imu in imu_link, gravity included, covariance unknown (all zero; REP 145's
+    -1 would mark the acceleration itself absent)."""
     from sensor_msgs.msg import Imu
 
     msgs = []
@@ -42,9 +43,22 @@ def imu_messages(stamps_ns: np.ndarray, accel_z: np.ndarray) -> list:
         m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, NS)
         m.header.frame_id = 'imu_link'
         m.linear_acceleration.z = a
-        m.linear_acceleration_covariance[0] = -1.0
         msgs.append(m)
     return msgs
+
+
+def offline_reference(stamps_ns: np.ndarray, accel_z: np.ndarray,
+                      frame_ids: np.ndarray | None = None) -> Any:
+    """offline_bands of the node's settings: fixed speed (use_odom false), accel on z."""
+    from railgsa_ros.inverse.policy import PolicyOptions
+    from railgsa_ros.uncertainty import offline_bands
+
+    accel = np.zeros((stamps_ns.size, 3))
+    accel[:, 2] = accel_z
+    config = node_config()
+    config = config.with_(inversion=config.inversion.with_(speed_mps=40.0))
+    return offline_bands(stamps_ns, accel, None, frame_ids, config=config,
+                         options=PolicyOptions(use_odom=False))
 
 
 def node_config() -> Any:
@@ -164,14 +178,14 @@ def _values(status: Any) -> dict[str, str]:
 
 def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Callable,
                                                                wait_for: Callable) -> None:
-    from railgsa_ros.uncertainty import UncertaintyStream, offline_bands
+    from railgsa_ros.uncertainty import UncertaintyStream
 
     stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
     msgs = imu_messages(stamps, acc)
     msgs[500].linear_acceleration.z = float('nan')  # rejected: nan
     msgs[900].header.frame_id = ''                  # malformed
     good = np.setdiff1d(np.arange(stamps.size), [500, 900])
-    ref = offline_bands(stamps[good], acc[good], 40.0, config=node_config())
+    ref = offline_reference(stamps[good], acc[good])
     stream = UncertaintyStream(node_config())
     live = stream.push(stamps[good], acc[good], 40.0)  # what the node can emit without a flush
     node, listener = rig()
@@ -187,7 +201,7 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
         got_t = np.array([b[0] for b in listener.band], np.int64)  # float64 rounds 1.7e18 ns
         arrays = list(listener.sensitivity)
     np.testing.assert_array_equal(got_t, ref.stamps_ns[:count])
-    scale = np.abs(ref.mean_m).max()
+    scale = np.nanmax(np.abs(ref.mean_m))
     for col, name in enumerate(('lower_m', 'mean_m', 'upper_m'), start=1):
         np.testing.assert_allclose(got[:, col], getattr(ref, name)[:count], rtol=0,
                                    atol=1e-12 * scale)
@@ -230,12 +244,10 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
 
     from railgsa_ros.bag import read_imu, write_run
     from railgsa_ros.nodes.bag_replay_node import BagReplayNode
-    from railgsa_ros.uncertainty import offline_bands
 
     bag = write_run(tmp_path / 'run', run, offset_ns=T0_NS)
     recorded = read_imu(bag)
-    ref = offline_bands(recorded.stamps_ns, recorded.accel[:, 2], 40.0, recorded.frame_ids,
-                        config=node_config())
+    ref = offline_reference(recorded.stamps_ns, recorded.accel[:, 2], recorded.frame_ids)
     node, listener = rig(qoi='')
     player = BagReplayNode(context=ros_context, parameter_overrides=[
         Parameter('bag_path', value=str(bag)), Parameter('rate', value=2.0),
@@ -253,7 +265,7 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
     np.testing.assert_array_equal(got_t, ref.stamps_ns[:count])
     np.testing.assert_allclose(got[:, 1:], np.stack([ref.lower_m, ref.mean_m, ref.upper_m],
                                                     axis=1)[:count],
-                               rtol=0, atol=1e-12 * np.abs(ref.mean_m).max())
+                               rtol=0, atol=1e-12 * np.nanmax(np.abs(ref.mean_m)))
 
 
 def test_internal_error_is_counted_and_the_stream_rebuilt(run: Any, rig: Callable) -> None:

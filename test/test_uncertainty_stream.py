@@ -13,8 +13,10 @@ import pytest
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline
+from railgsa_ros.inverse.policy import PolicyOptions
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.scenario import run_scenario
-from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream, offline_bands
+from railgsa_ros.uncertainty import Band, UncertaintyConfig, UncertaintyStream, offline_bands
 from railgsa_ros.uncertainty.config import load_config
 from railgsa_ros.uncertainty.stream import band_statistics, order_statistics
 from railgsa_ros.uncertainty.surrogate import build_design
@@ -30,6 +32,9 @@ RATE = 500.0
 # Paper mode (feedback inversion, no band: D = 0) keeps brute force cheap: 8 s at 10 m/s puts
 # the paper profile's largest deviation (70 m) at t = 7 s, the paper's quantity of interest.
 PAPER = InversionConfig(method='feedback', band='none', rate_hz=RATE, gap_policy='reset')
+# the ideal sensor repeats values on the flat start of the paper profile: no stuck check
+IDEAL = PolicyOptions(stuck_s=0.0)
+WARM = round(PAPER.taper_s * RATE)  # the fade-in after the start: INVALID outputs
 DISTS = table3()
 COLUMNS = [PARAM_NAMES.index(n) for n in DISTS]
 
@@ -71,8 +76,14 @@ def brute(run):
 @pytest.mark.parametrize(('rule', 'size', 'tol'), [('pem5', 0, 0.035), ('lstsq', 40, 0.04)])
 def test_band_matches_brute_force_monte_carlo(run, brute, rule, size, tol):
     config = UncertaintyConfig(inversion=PAPER, rule=rule, rule_size=size)
-    band = offline_bands(run.stamps_ns, run.accel[:, 2], run.speed_mps, config=config)
+    band = offline_bands(run.stamps_ns, run.accel, (run.stamps_ns, run.speed_mps), config=config,
+                         options=IDEAL)
     assert brute.shape[1] == len(band)
+    # the fade-in after the start is INVALID (NaN band), the rest VALID
+    assert np.all(band.quality[:WARM] == Quality.INVALID) and np.all(band.quality[WARM:] == 0)
+    assert np.all(np.isnan(band.mean_m[:WARM]))
+    band = Band(*(getattr(band, f.name)[WARM:] for f in fields(Band)))
+    brute = brute[:, WARM:]
     scale = np.abs(run.truth_u_m).max()
     mean, se = brute.mean(axis=0), brute.std(axis=0) / np.sqrt(brute.shape[0])
     lower, upper = np.quantile(brute, [0.025, 0.975], axis=0)
@@ -91,19 +102,20 @@ def test_band_matches_brute_force_monte_carlo(run, brute, rule, size, tol):
 
 def test_window_indices_equal_uq_analyze_on_the_same_quantity(run):
     config = UncertaintyConfig(inversion=PAPER, window_length=100.0, n_mc=20000)
-    updates = _push_chunks(UncertaintyStream(config), run, np.full(40, 100))
+    updates = _push_chunks(UncertaintyStream(config, options=IDEAL), run, np.full(40, 100))
     records = [w for up in updates for w in up.windows]
     assert [r.qoi for r in records] == ['peak', 'rms']
     peak = records[0]
     stamps = run.stamps_ns
     k = int(np.flatnonzero(stamps == peak.peak_stamp_ns)[0])
     assert abs(k / RATE - 7.0) < 0.1  # the paper's t = 7 s, found on the stream
-    assert (peak.first_stamp_ns, peak.last_stamp_ns, peak.samples) == (stamps[0], stamps[-1],
-                                                                        stamps.size)
+    # the window holds the samples that are not INVALID (after the fade-in)
+    assert (peak.first_stamp_ns, peak.last_stamp_ns, peak.samples) == (
+        stamps[WARM], stamps[-1], stamps.size - WARM)
 
     def model(physical: np.ndarray) -> np.ndarray:
         u = _bank(run, _thetas(physical))
-        return np.stack([u[:, k], np.sqrt(np.mean(u ** 2, axis=1))], axis=1)
+        return np.stack([u[:, k], np.sqrt(np.mean(u[:, WARM:] ** 2, axis=1))], axis=1)
 
     ref = analyze(model, list(DISTS.values()), order=2, rule='pem5', delta=True,
                   delta_samples=config.n_mc, seed=config.seed)
@@ -133,7 +145,7 @@ def test_band_stamps_are_the_nominal_pipeline_stamps_one_to_one(run):
     rng = np.random.default_rng(3)
     stamps, acc, speed, sizes = _dirty(run, rng)
     inversion = InversionConfig(rate_hz=RATE)  # the default spectral D1 method
-    stream = UncertaintyStream(UncertaintyConfig(inversion=inversion, qoi=''))
+    stream = UncertaintyStream(UncertaintyConfig(inversion=inversion, qoi=''), options=IDEAL)
     nominal = InversionPipeline(inversion, VehicleParams())
     edges = np.concatenate([[0], np.cumsum(sizes)])
     got, want = [], []
@@ -153,11 +165,11 @@ def test_band_stamps_are_the_nominal_pipeline_stamps_one_to_one(run):
 def test_outputs_do_not_depend_on_chunking(run):
     config = UncertaintyConfig(inversion=PAPER, window_length=2.0, n_mc=4096)
     rng = np.random.default_rng(5)
-    one = _push_chunks(UncertaintyStream(config), run, [run.stamps_ns.size])
-    many = _push_chunks(UncertaintyStream(config), run, rng.integers(1, 300, 40))
-    tiny = _push_chunks(UncertaintyStream(config), run, np.ones(500, int))
+    one = _push_chunks(UncertaintyStream(config, options=IDEAL), run, [run.stamps_ns.size])
+    many = _push_chunks(UncertaintyStream(config, options=IDEAL), run, rng.integers(1, 300, 40))
+    tiny = _push_chunks(UncertaintyStream(config, options=IDEAL), run, np.ones(500, int))
     ref = one[0].band.__class__.concat([u.band for u in one])
-    scale = np.abs(ref.mean_m).max()
+    scale = np.nanmax(np.abs(ref.mean_m))
     for updates in (many, tiny):
         band = ref.__class__.concat([u.band for u in updates])
         np.testing.assert_array_equal(band.stamps_ns[:len(band)], ref.stamps_ns[:len(band)])
@@ -178,12 +190,12 @@ def test_outputs_do_not_depend_on_chunking(run):
 def test_windows_in_metres_follow_chainage(run):
     config = UncertaintyConfig(inversion=PAPER, window_length=25.0, window_unit='m',
                                qoi='rms', n_mc=2048)
-    records = [w for u in _push_chunks(UncertaintyStream(config), run, [1000, 1000, 2000])
-               for w in u.windows]
+    records = [w for u in _push_chunks(UncertaintyStream(config, options=IDEAL), run,
+                                       [1000, 1000, 2000]) for w in u.windows]
     assert len(records) == 4  # 80 m of track
     for i, rec in enumerate(records):
         assert i * 25.0 <= rec.chainage_start_m <= rec.chainage_end_m < (i + 1) * 25.0
-    assert sum(r.samples for r in records) == run.stamps_ns.size
+    assert sum(r.samples for r in records) == run.stamps_ns.size - WARM  # not the INVALID ones
 
 
 def test_band_quantiles_are_those_of_the_sampled_surrogate(run):

@@ -1,9 +1,12 @@
 """``railgsa invert``: reconstruct the track irregularity from the IMU stream of a bag.
 
-Runs the node's streaming ``InversionPipeline`` over the bag in chunks and writes
-``t_s,chainage_m,u_m`` (t_s = IMU stamp in s) for every accepted sample, or with ``--out`` the
+Runs the nodes' ``InputPolicy`` (every input decision: speed, noise, sanitising, quality) over
+the bag in chunks and writes ``t_s,chainage_m,u_m,quality`` (t_s = IMU stamp in s; quality 0
+VALID, 1 DEGRADED, 2 INVALID with u = nan) for every accepted sample, or with ``--out`` the
 node's ``/track/irregularity`` topic (geometry_msgs/PointStamped, frame ``track``, point.x =
-chainage, point.z = irregularity, header stamp = log time = IMU stamp) to a rosbag2 bag.
+chainage, point.y = quality code, point.z = irregularity, NaN when INVALID, header stamp = log
+time = IMU stamp) to a rosbag2 bag. The speed is the bag's odometry (exit 2 without it) unless
+``--speed`` fixes it; ``rate_hz`` defaults to the measured IMU rate.
 ``--bands`` adds ``lower_m,mean_m,upper_m`` (uncertainty_node's ``/track/irregularity_band``)
 computed by the node's streaming code (``railgsa_ros.uncertainty.offline_bands``).
 """
@@ -19,7 +22,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
-CHUNK = 65536  # IMU samples per pipeline call
+CHUNK = 65536  # IMU samples per policy call
+REJECTIONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
 OUT_TOPIC = '/track/irregularity'
 GRID_TOPIC = '/track/irregularity_grid'  # --grid: the profile at a fixed chainage step
 BAND_TOPIC = '/track/irregularity_band'
@@ -52,7 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
     p.add_argument('--odom-topic', default='/odom', metavar='T',
-                   help='odometry topic for the speed (default /odom; ignored when absent)')
+                   help='odometry topic for the speed (default /odom; without odometry, '
+                   '--speed is required)')
     p.add_argument('--params', metavar='FILE',
                    help='ROS params file with irregularity_node: ros__parameters:')
     p.add_argument('--vehicle', metavar='FILE', help='vehicle YAML (default the paper Table 1)')
@@ -69,13 +74,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def build_config(args: argparse.Namespace, rate_hz: float) -> object:
-    """Params file (if any), then the command-line choices; rate_hz from the bag unless set."""
-    from railgsa_ros.cli._params import read_params
-    from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
+#: the input options of the nodes that the offline commands apply from --params (use_odom is
+#: --speed here)
+POLICY_PARAMS = ('odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s')
 
-    known = set(InversionConfig.__dataclass_fields__)
+
+def build_config(args: argparse.Namespace, rate_hz: float) -> tuple[object, object]:
+    """(InversionConfig, PolicyOptions) from the params file (if any), then the command line.
+    rate_hz defaults to the bag's measured rate; a given rate_hz that disagrees with it beyond
+    rate_tolerance is a ConfigError (the filters would be designed for another rate)."""
+    from railgsa_ros.cli._params import read_params
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
+    from railgsa_ros.inverse.policy import PolicyOptions
+
+    known = set(InversionConfig.__dataclass_fields__) | set(POLICY_PARAMS)
     params = read_params(args.params, (NODE_NAME,), known, 'invert') if args.params else {}
+    options = {k: params.pop(k) for k in POLICY_PARAMS if k in params}
+    given = 'rate_hz' in params
     params.setdefault('rate_hz', rate_hz)
     for name in ('method', 'band'):
         if getattr(args, name) is not None:
@@ -86,7 +102,18 @@ def build_config(args: argparse.Namespace, rate_hz: float) -> object:
         params['smoother'] = True
     if args.speed is not None:
         params['speed_mps'] = args.speed
-    return InversionConfig.from_mapping(params, source=args.params or 'command line')
+    source = args.params or 'command line'
+    cfg = InversionConfig.from_mapping(params, source=source)
+    if given and abs(rate_hz / cfg.rate_hz - 1.0) > cfg.rate_tolerance:
+        off = abs(rate_hz / cfg.rate_hz - 1) * 100
+        raise ConfigError(f'{source}: rate_hz {cfg.rate_hz:g} disagrees with the bag\'s measured '
+                          f'IMU rate {rate_hz:.6g} Hz by {off:.3g} %: remove rate_hz (the '
+                          'default is the measured rate) or correct it')
+    try:
+        policy = PolicyOptions(use_odom=args.speed is None, **options)
+    except ConfigError as exc:
+        raise ConfigError(f'{source}: {exc}') from None
+    return cfg, policy
 
 
 def sensor_delay(text: str) -> float:
@@ -107,63 +134,81 @@ def sensor_delay(text: str) -> float:
 
 @dataclass(frozen=True)
 class Inputs:
-    """What the bag and the options give the pipeline: per-sample arrays and the settings."""
+    """What the bag and the options give the policy: the recorded stream and the settings."""
 
-    stamps_ns: np.ndarray
-    acc_z: np.ndarray
-    speed_mps: np.ndarray
-    frame_ids: np.ndarray
+    stream: object
     config: object
+    options: object
     vehicle: object
-    noise_variance: float | None
+
+
+def measured_rate(stamps_ns: np.ndarray, bag: str, topic: str) -> float:
+    """The IMU rate (Hz): 1 / the median positive stamp step; InputError with fewer than two
+    distinct stamps."""
+    import numpy as np
+
+    from railgsa_ros.errors import InputError
+
+    steps = np.diff(stamps_ns)
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        raise InputError(f'{bag}: {topic} needs at least two distinct stamps')
+    return 1e9 / float(np.median(steps))
 
 
 def load_inputs(args: argparse.Namespace) -> Inputs:
-    """Read the bag and build the pipeline settings (InputError/ConfigError naming the file)."""
+    """Read the bag and build the settings (InputError/ConfigError naming the file); exit 2
+    without odometry unless --speed is given."""
     import numpy as np
 
     from railgsa_ros.bag import read_imu
     from railgsa_ros.errors import ConfigError, InputError
-    from railgsa_ros.inverse.pipeline import vertical
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     if args.speed is not None and not (np.isfinite(args.speed) and args.speed > 0):
         raise ConfigError(f'--speed: expected a positive number of m/s, got {args.speed!r}')
     stream = read_imu(args.bag, args.imu_topic, args.odom_topic)
-    stamps = stream.stamps_ns
-    steps = np.diff(stamps)
-    steps = steps[steps > 0]
-    if steps.size == 0:
-        raise InputError(f'{args.bag}: {args.imu_topic} needs at least two distinct stamps')
-    cfg = build_config(args, 1e9 / float(np.median(steps)))
+    cfg, options = build_config(args, measured_rate(stream.stamps_ns, args.bag, args.imu_topic))
+    if args.speed is None and stream.odom_stamps_ns.size == 0:
+        raise InputError(f'{args.bag}: no odometry on {args.odom_topic} and no --speed: the '
+                         'speed is unknown (give --speed MPS or --odom-topic)')
     vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
-    variance = stream.accel_variance(cfg.noise_std_mps2 ** 2)[:, 'xyz'.index(cfg.accel_axis[-1])]
-    known = variance[np.isfinite(variance)]
-    if args.speed is not None or stream.odom_stamps_ns.size == 0:
-        speed = np.full(stamps.size, cfg.speed_mps)
-    else:  # odometry held: the newest odometry sample at or before each IMU stamp
-        idx = np.searchsorted(stream.odom_stamps_ns, stamps, side='right') - 1
-        speed = stream.speed_mps[np.clip(idx, 0, None)]
-    return Inputs(stamps, vertical(stream.accel, cfg.accel_axis), speed, stream.frame_ids, cfg,
-                  vehicle, float(np.median(known)) if known.size else None)
+    return Inputs(stream, cfg, options, vehicle)
+
+
+def feed(policy: object, stream: object, use_odom: bool, chunk: int = CHUNK) -> list:
+    """The offline feeding of a policy (or UncertaintyStream): the odometry in recorded order
+    (with ``use_odom``), then the IMU in chunks, then flush; returns every result in order."""
+    outs = []
+    if use_odom:
+        outs.append(policy.odometry(stream.odom_stamps_ns, stream.speed_mps))
+    for i in range(0, stream.stamps_ns.size, chunk):
+        sl = slice(i, i + chunk)
+        outs.append(policy.imu(stream.stamps_ns[sl], stream.accel[sl], stream.frame_ids[sl],
+                               stream.covariance[sl]))
+    outs.append(policy.flush())
+    return outs
 
 
 def invert_bag(args: argparse.Namespace) -> tuple[object, object, Inputs]:
-    """Run the pipeline over the bag: (Output of every accepted sample, pipeline, inputs)."""
-    import numpy as np
-
+    """Run the policy over the bag: (Output of every accepted sample, policy, inputs);
+    InputError when no sample is usable (every one rejected). With --grid the filters are
+    those in front of the chainage grid (``inverse.grid.grid_config``)."""
+    from railgsa_ros.errors import InputError
     from railgsa_ros.inverse.grid import grid_config
-    from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+    from railgsa_ros.inverse.pipeline import Output
+    from railgsa_ros.inverse.policy import InputPolicy
 
     inp = load_inputs(args)
-    pipe = InversionPipeline(grid_config(inp.config) if args.grid is not None else inp.config,
-                             inp.vehicle, inp.noise_variance)
-    outs = [pipe.push(inp.stamps_ns[i:i + CHUNK], inp.acc_z[i:i + CHUNK],
-                      inp.speed_mps[i:i + CHUNK], inp.frame_ids[i:i + CHUNK])
-            for i in range(0, inp.stamps_ns.size, CHUNK)]
-    outs.append(pipe.flush())
-    return Output(*(np.concatenate([getattr(o, f) for o in outs]) for f in
-                    ('stamps_ns', 'chainage_m', 'u_m'))), pipe, inp
+    policy = InputPolicy(grid_config(inp.config) if args.grid is not None else inp.config,
+                         inp.vehicle, options=inp.options)
+    out = Output.concat(feed(policy, inp.stream, inp.options.use_odom))
+    if len(out) == 0:
+        counts = policy.counters
+        rejected = ', '.join(f'{k} {counts[k]}' for k in REJECTIONS if counts.get(k)) or 'none'
+        raise InputError(f'{args.bag}: no usable IMU sample (rejected: {rejected}): '
+                         f'{policy.status.message}')
+    return out, policy, inp
 
 
 def on_grid(out: object, config: object, step_m: float) -> object:
@@ -181,7 +226,7 @@ def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
 
     from railgsa_ros.cli._params import read_params
     from railgsa_ros.errors import InputError
-    from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
+    from railgsa_ros.uncertainty import Band, UncertaintyConfig, UncertaintyStream
     from railgsa_ros.uq.uncertainty_file import load_uncertainty
 
     base = UncertaintyConfig()
@@ -190,30 +235,33 @@ def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
         base = UncertaintyConfig.from_mapping(read_params(
             args.uncertainty_params, ('uncertainty_node',), known, 'invert --bands'),
             args.uncertainty_params)
-    band = offline_bands(inp.stamps_ns, inp.acc_z, inp.speed_mps, inp.frame_ids,
-                         config=base.with_(inversion=inp.config), vehicle=inp.vehicle,
-                         dists=load_uncertainty(args.uncertainty) if args.uncertainty else None,
-                         noise_variance=inp.noise_variance)
-    if not np.array_equal(band.stamps_ns, out.stamps_ns):
-        raise InputError(f'{args.bag}: band and irregularity stamps differ (internal error)')
+    stream = UncertaintyStream(base.with_(inversion=inp.config, qoi=''), inp.vehicle,
+                               load_uncertainty(args.uncertainty) if args.uncertainty else None,
+                               options=inp.options)
+    band = Band.concat([update.band for update in
+                       feed(stream, inp.stream, inp.options.use_odom)])
+    if not (np.array_equal(band.stamps_ns, out.stamps_ns)
+            and np.array_equal(band.quality, out.quality)):
+        raise InputError(f'{args.bag}: band and irregularity samples differ (internal error)')
     return band
 
 
 def write_csv(path: str | Path, out: object, band: object | None, overwrite: bool) -> None:
-    """``t_s,chainage_m,u_m[,lower_m,mean_m,upper_m]``, stamps printed exactly from their ns."""
+    """``t_s,chainage_m,u_m,quality[,lower_m,mean_m,upper_m]``, stamps printed exactly from
+    their ns; quality 0 VALID, 1 DEGRADED, 2 INVALID (u and the band 'nan')."""
     import numpy as np
 
     from railgsa_ros.fileio import atomic_output
 
     sec, nsec = np.divmod(out.stamps_ns, 1_000_000_000)
     t = np.char.add(np.char.add(sec.astype(str), '.'), np.char.zfill(nsec.astype(str), 9))
-    header = 't_s,chainage_m,u_m'
-    values = [out.chainage_m, out.u_m]
+    header = 't_s,chainage_m,u_m,quality'
+    values = [out.chainage_m, out.u_m, out.quality]
     if band is not None:
         header += ',lower_m,mean_m,upper_m'
         values += [band.lower_m, band.mean_m, band.upper_m]
     cols = np.column_stack(values)
-    fmt = ','.join(['%.4f'] + ['%.9e'] * (cols.shape[1] - 1))
+    fmt = ','.join(['%.4f', '%.9e', '%d'] + ['%.9e'] * (cols.shape[1] - 3))
     body = np.char.add(np.char.add(t, ','), np.array([fmt % tuple(r) for r in cols]))
     with atomic_output(path, overwrite) as tmp:
         tmp.write_text('\n'.join([header, *body]) + '\n', encoding='utf-8')
@@ -222,8 +270,8 @@ def write_csv(path: str | Path, out: object, band: object | None, overwrite: boo
 def write_bag(path: str | Path, out: object, band: object | None, overwrite: bool,
               topic: str = OUT_TOPIC) -> None:
     """The nodes' topics, log time = header stamp = IMU stamp: ``/track/irregularity``
-    (PointStamped: x chainage, z irregularity) and with a band ``/track/irregularity_band``
-    (Vector3Stamped: x lower, y mean, z upper)."""
+    (PointStamped: x chainage, y quality code, z irregularity, NaN when INVALID) and with a
+    band ``/track/irregularity_band`` (Vector3Stamped: x lower, y mean, z upper)."""
     import numpy as np
 
     from railgsa_ros.bag import BagWriter
@@ -231,7 +279,7 @@ def write_bag(path: str | Path, out: object, band: object | None, overwrite: boo
     from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED, history_depth, qos
 
     values = np.zeros((out.stamps_ns.size, 3))
-    values[:, 0], values[:, 2] = out.chainage_m, out.u_m
+    values[:, 0], values[:, 1], values[:, 2] = out.chainage_m, out.quality, out.u_m
     topics = {topic: (POINT_STAMPED, values)}
     if band is not None:
         topics[BAND_TOPIC] = (VECTOR3_STAMPED,
@@ -253,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
         from railgsa_ros.errors import ConfigError
 
         raise ConfigError('--bands: the uncertainty band is per IMU sample; not with --grid')
-    out, pipe, inp = invert_bag(args)
+    out, policy, inp = invert_bag(args)
     if args.grid is not None:
         out = on_grid(out, inp.config, args.grid)
     band = bands_for(args, inp, out) if args.bands else None
@@ -262,7 +310,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         write_bag(args.out, out, band, args.overwrite,
                   GRID_TOPIC if args.grid is not None else OUT_TOPIC)
-    counts = ', '.join(f'{k} {v}' for k, v in sorted(pipe.counters.items()))
-    print(f'{len(out)} samples ({pipe.config.method}, band {pipe.config.band}, delay '
-          f'{pipe.delay_samples} samples); {counts}', file=sys.stderr)
+    for finding in policy.findings:
+        if finding.level:
+            print(f'warning: {finding.message}', file=sys.stderr)
+    if not (out.quality != 2).any():
+        print('warning: every output is INVALID (u = nan): see the warnings above, or the run '
+              'is shorter than the band window', file=sys.stderr)
+    counts = ', '.join(f'{k} {v}' for k, v in sorted(policy.counters.items()))
+    print(f'{len(out)} samples ({policy.config.method}, band {policy.config.band}, delay '
+          f'{policy.delay_samples} samples); {counts}', file=sys.stderr)
     return 0

@@ -26,11 +26,10 @@ from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.fleet.defects import DETECT_FRACTION
 from railgsa_ros.fleet.gnss import GNSS_TOPIC
 from railgsa_ros.inverse.observability import NoiseFloor
+from railgsa_ros.inverse.policy import PolicyOptions
 from railgsa_ros.offline import (
     Driver,
-    HeldSpeed,
     Source,
-    noise_variance,
     nominal_rate_hz,
     peek,
     steps,
@@ -139,9 +138,9 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     if options.rate_from_bag:
         cfg = cfg.with_(inversion=cfg.inversion.with_(rate_hz=nominal_rate_hz(first, source)))
     inv = cfg.inversion
-    speed = HeldSpeed(inv.speed_mps, options.odom_topic in topics)
-    variance = noise_variance(first, inv.accel_axis, inv.noise_std_mps2)
-    driver = Driver(cfg, options.vehicle, None, variance, speed)
+    if options.odom_topic not in topics:
+        raise InputError(f'{bag}: no odometry on {options.odom_topic}: the speed is unknown')
+    driver = Driver(cfg, options.vehicle, None, PolicyOptions())
     t0 = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
     profile, clock = GridBuilder(options.dx_m), GridBuilder(options.dx_m)
     seen = {'samples': 0, 'last': t0}
@@ -158,12 +157,15 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
 
     for step in steps(driver, counted(pieces)):
         profile.push(step.chainage_m, step.u_m, step.speed_mps)
-        clock.push(step.chainage_m, (step.stamps_ns - t0) * 1e-9, step.speed_mps)
+        seconds = (step.stamps_ns - t0) * 1e-9  # NaN where INVALID, as u: the same cells
+        clock.push(step.chainage_m, np.where(np.isnan(step.u_m), np.nan, seconds),
+                   step.speed_mps)
     grid, times = profile.grid(), clock.grid()
     if grid.valid.sum() < 10:
         raise InputError(f'{bag}: the pass covers {grid.valid.sum() * options.dx_m:.1f} m of '
                          'usable chainage, too short to align')
-    slowest, fastest = trusted_speeds(cfg, options.vehicle, variance)
+    # the input policy's noise decision (median of the reported variances, else the config's)
+    slowest, fastest = trusted_speeds(cfg, options.vehicle, driver.nominal.noise_variance)
     with np.errstate(invalid='ignore'):
         valid = grid.valid & (grid.speed_mps >= slowest) & (grid.speed_mps <= fastest)
     timed = np.isfinite(times.u_m)  # every cell reached has a time; gaps are interpolated

@@ -51,6 +51,9 @@ from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
+#: the band window that decides an output's quality: the taps outside it hold less than this
+#: fraction of the impulse response's L1 norm (the FIR itself is cut at fir_tolerance)
+WINDOW_TOLERANCE = 1e-3
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
@@ -90,6 +93,13 @@ def vertical(accel: np.ndarray, axis: str) -> np.ndarray:
     col = 'xyz'.index(axis[-1])
     sign = -1.0 if axis.startswith('-') else 1.0
     return sign * np.asarray(accel, dtype=float)[:, col]
+
+
+def inverse_response(theta: np.ndarray, grid_hz: np.ndarray) -> np.ndarray:
+    """1/G (P, F) on a design grid starting at f = 0, where it is set to 0 (G has its double
+    zero there only, and every band response |BP|^2 vanishes there)."""
+    g = frequency_response(np.atleast_2d(theta), 2j * np.pi * grid_hz[1:])
+    return np.concatenate([np.zeros((g.shape[0], 1)), 1.0 / g], axis=1)
 
 
 def taper(n: np.ndarray, length: int) -> np.ndarray:
@@ -132,17 +142,22 @@ class InversionPipeline:
     ``vehicle``: VehicleParams, theta (5,) or a bank theta (P, 5); ``noise_variance``: IMU
     accelerometer variance ((m/s^2)^2) for the Kalman method, else ``config.noise_std_mps2``^2;
     ``start_chainage_m``: chainage of the first sample (m; a rebuilt pipeline continues its
-    predecessor's); ``stuck_s``, ``backward_reset_s``: see :class:`InputSanitizer`.
+    predecessor's); ``stuck_s``, ``backward_reset_s``: see :class:`InputSanitizer`;
+    ``nominal``: the vehicle theta (5,) whose band response sets the quality window
+    (``window_half_width``; default: the widest of the bank), so that a bank and the nominal
+    pipeline grade their outputs alike.
     """
 
     def __init__(self, config: InversionConfig | None = None,
                  vehicle: VehicleParams | np.ndarray | None = None,
                  noise_variance: float | None = None, *, start_chainage_m: float = 0.0,
-                 stuck_s: float = 0.0, backward_reset_s: float = 1.0) -> None:
+                 stuck_s: float = 0.0, backward_reset_s: float = 1.0,
+                 nominal: np.ndarray | None = None) -> None:
         cfg = self.config = config if config is not None else InversionConfig()
         theta = as_theta(vehicle if vehicle is not None else VehicleParams())
         self._squeeze = theta.ndim == 1
         self.theta = np.atleast_2d(theta)
+        self._nominal = None if nominal is None else np.atleast_2d(as_theta(nominal))
         self.dt = 1.0 / cfg.rate_hz
         self.sanitizer = InputSanitizer(cfg.rate_hz, cfg.gap_factor, cfg.gap_policy,
                                         cfg.max_bridge_s, cfg.saturation_mps2,
@@ -162,6 +177,7 @@ class InversionPipeline:
                                         cfg.min_design_speed_mps, cfg.max_speed_mps)
         self._fir: PartitionedFir | MultirateFir | None = None
         self.delay_samples = 0
+        self._window = (0, 0, 1)  # significant half-width: fixed part, low-rate part at vmin, R
         self.decimation = 1
         self.band_taps = 0
         self.truncation_error = 0.0
@@ -238,8 +254,8 @@ class InversionPipeline:
         return self.flush()
 
     # ----------------------------------------------------------------- internals
-    def _response(self, speed: float) -> np.ndarray:
-        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in,
+    def _band_power(self, speed: float) -> np.ndarray:
+        """|BP|^2 (1, F) on the design grid at ``speed`` (held at min_design_speed_mps),
         advanced by ``sensor_delay_s``: the output at an IMU stamp is the track under the wheel
         at that stamp, so stamp and chainage stay the sample's own."""
         cfg = self.config
@@ -247,12 +263,16 @@ class InversionPipeline:
         bp = bandpass_power(self._grid, lo, hi, cfg.band_order)[None] * self._rolloff
         if cfg.sensor_delay_s:  # advance by the sensor's group delay: exp(+j w tau)
             bp = bp * np.exp(2j * np.pi * self._grid * cfg.sensor_delay_s)
-        if cfg.method != 'spectral':
+        return bp
+
+    def _response(self, speed: float) -> np.ndarray:
+        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in."""
+        bp = self._band_power(speed)
+        if self.config.method != 'spectral':
             return bp
         if self._inv_g is None:  # 1/G on the design grid does not depend on the speed
-            g = frequency_response(self.theta, 2j * np.pi * self._grid[1:])
-            self._inv_g = np.concatenate([np.zeros((g.shape[0], 1)), 1.0 / g], axis=1)
-        return bp * self._inv_g  # G has its double zero at f = 0 only, where |BP|^2 = 0
+            self._inv_g = inverse_response(self.theta, self._grid)
+        return bp * self._inv_g
 
     def _band_stage(self) -> PartitionedFir | MultirateFir:
         """Band FIR designed at min_design_speed_mps (the longest impulse response), run at
@@ -283,13 +303,19 @@ class InversionPipeline:
         self.band_taps = taps.shape[-1]
         self.truncation_error = truncation_error(taps, response)
         channels = self.theta.shape[0]
+        graded = response
+        if self._nominal is not None and cfg.method == 'spectral':
+            graded = self._band_power(vmin) * inverse_response(self._nominal, self._grid)
+        significant = half_length(graded, max(WINDOW_TOLERANCE, cfg.fir_tolerance))
         if self.decimation == 1:
             self.delay_samples = self._half
+            self._window = (0, significant, 1)
             return PartitionedFir(taps, channels)
         antialias = antialias_taps(cfg.rate_hz, self.decimation, f_top, cfg.fir_tolerance)
         fir = MultirateFir(taps, channels, self.decimation, antialias,
                            rate_dtype(cfg.fir_tolerance, self._stage is None))
         self.delay_samples = self.decimation * self._half + 2 * fir.half_delay
+        self._window = (2 * fir.half_delay, significant, self.decimation)
         return fir
 
     def _start_segment(self) -> None:
@@ -298,7 +324,7 @@ class InversionPipeline:
         self._meta = _Meta()
         self._meta_start = 0  # segment index of the oldest sample in the delay line
         self._bridged = np.zeros(0, np.int64)  # segment indices of bridged samples still seen
-        self._tail_from = np.iinfo(np.int64).max  # outputs from here on: window past the end
+        self._last_real = np.iinfo(np.int64).max  # segment index of the last real sample (at end)
         self._last_a = 0.0
         self._bias = (0.0, 0)  # running sum (m/s^2) and count of the segment's samples
         self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
@@ -370,7 +396,7 @@ class InversionPipeline:
         n0 = self._n
         self._meta.extend(stamps, chain, speed, emit, quality)
         bridged = np.flatnonzero(~emit)
-        if bridged.size and self._tail_from == np.iinfo(np.int64).max:  # not the end pad
+        if bridged.size and self._last_real == np.iinfo(np.int64).max:  # not the end pad
             self._bridged = np.concatenate([self._bridged, n0 + bridged])
         per = self.switch_period
         bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per)  # segment sample indices
@@ -436,31 +462,42 @@ class InversionPipeline:
         self._meta_start += count
         keep = slice(None) if emit.all() else emit  # no bridged samples: views, no copies
         self._counters['emitted'] += int(emit.sum())
-        quality = self._window_quality(first, quality)
+        quality = self._window_quality(first, quality, speed)
         return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep], quality[keep],
                       speed[keep])
 
-    def _window_quality(self, first: int, quality: np.ndarray) -> np.ndarray:
+    def window_half_width(self, speed_mps: np.ndarray) -> np.ndarray:
+        """Significant half-width (input samples) of the band window of outputs at these speeds:
+        the taps beyond it hold < WINDOW_TOLERANCE of the L1 norm; it scales as 1 / v with the
+        design (held at min_design_speed_mps and max_speed_mps)."""
+        fixed, low, r = self._window
+        cfg = self.config
+        v = np.clip(np.abs(speed_mps), cfg.min_design_speed_mps, cfg.max_speed_mps)
+        return fixed + r * np.ceil(low * cfg.min_design_speed_mps / v).astype(np.int64)
+
+    def _window_quality(self, first: int, quality: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Input quality of the samples at segment indices first.. raised by their band window
-        [n - D, n + D]: INVALID where it reaches into the fade-in or before the segment start
-        (n < D + taper) or past the segment's last real sample (the tail), at least DEGRADED
-        where it holds a bridged sample."""
-        d = self.delay_samples
-        warm = d + round(self.config.taper_s * self.config.rate_hz)
+        [n - w, n + w] (w = ``window_half_width``): INVALID where it reaches into the fade-in
+        or before the segment start (n < w + taper) or past the segment's last real sample
+        (the tail before a reset or flush), at least DEGRADED where it holds a bridged
+        sample."""
+        widest = self._window[0] + self._window[1] * self._window[2]
+        ramp = round(self.config.taper_s * self.config.rate_hz)
         last = first + quality.size
-        if first >= warm and last <= self._tail_from and (
-                self._bridged.size == 0 or self._bridged[-1] < first - d):
+        if first >= widest + ramp and last - 1 + widest <= self._last_real and (
+                self._bridged.size == 0 or self._bridged[-1] < first - widest):
             self._bridged = self._bridged[-1:]  # the usual case: nothing to raise
             return quality
         n = np.arange(first, last)
-        out = np.maximum(quality, np.where(
-            (n < warm) | (n >= self._tail_from), Quality.INVALID, Quality.VALID)).astype(np.uint8)
+        w = self.window_half_width(speed)
+        out = np.maximum(quality, np.where((n < w + ramp) | (n + w > self._last_real),
+                                           Quality.INVALID, Quality.VALID)).astype(np.uint8)
         if self._bridged.size:
-            hits = (np.searchsorted(self._bridged, n + d, side='right')
-                    - np.searchsorted(self._bridged, n - d, side='left'))
+            hits = (np.searchsorted(self._bridged, n + w, side='right')
+                    - np.searchsorted(self._bridged, n - w, side='left'))
             out = np.maximum(out, np.where(hits > 0, Quality.DEGRADED, Quality.VALID)
                              ).astype(np.uint8)
-            self._bridged = self._bridged[self._bridged >= last - d]
+            self._bridged = self._bridged[self._bridged >= last - widest]
         return out
 
     def _end_segment(self) -> Output:
@@ -473,7 +510,7 @@ class InversionPipeline:
             fade = 1.0 - taper(np.arange(d), round(cfg.taper_s * cfg.rate_hz))
             pad = (self._last_a * fade, np.zeros(d, np.int64), np.zeros(d), np.zeros(d),
                    np.zeros(d, bool), np.zeros(d, np.uint8))
-            self._tail_from = pending - d  # these outputs' windows reach into the pad
+            self._last_real = pending - 1  # outputs whose window reaches past it: INVALID
             if cfg.smoother:
                 a_s, stamps, chain, speed, emit, quality = (
                     np.concatenate(parts) for parts in zip(*self._offline, pad, strict=True))

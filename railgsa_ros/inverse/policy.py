@@ -271,14 +271,14 @@ class InputPolicy:
         out = self._release(final=True)
         if self.pipeline is None:
             return out
-        return Output.concat([out, self._finish(self.pipeline.flush())], self._channels)
+        return Output.concat([out, self.finish(self.pipeline.flush())], self._channels)
 
     def reset(self, reason: str = 'request') -> Output:
         """Restart the filters (pending outputs emitted, the tail INVALID); held samples go to
         the restarted filters."""
         if self.pipeline is None:
             return self._empty()
-        return self._finish(self.pipeline.reset(reason))
+        return self.finish(self.pipeline.reset(reason))
 
     def rebuild(self, config: InversionConfig | None = None,
                 vehicle: VehicleParams | np.ndarray | None = None, *,
@@ -288,7 +288,7 @@ class InputPolicy:
         ones that continue the chainage; held samples and the noise decision are kept."""
         out = self._empty()
         if self.pipeline is not None:
-            out = self._finish(self.pipeline.flush())
+            out = self.finish(self.pipeline.flush())
             self._retired.update(self.pipeline.counters)
             self._start_chainage = self.pipeline.chainage_m
             self.pipeline = None
@@ -301,6 +301,13 @@ class InputPolicy:
         if self.noise_variance is not None:
             self._build()
         return out
+
+    def start(self) -> InversionPipeline:
+        """Decide the noise now (from the variances reported so far, else noise_std_mps2) and
+        build the filters if that has not happened yet; returns the pipeline."""
+        if self.pipeline is None:
+            self._decide_noise()
+        return self.pipeline
 
     def noise_std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
         """Sensor noise propagated into the band, sigma_u (m), at the given speeds (m/s)."""
@@ -327,7 +334,7 @@ class InputPolicy:
         self.pipeline = InversionPipeline(
             cfg, self.bank if self.bank is not None else self.theta, self.noise_variance,
             start_chainage_m=self._start_chainage, stuck_s=opt.stuck_s,
-            backward_reset_s=opt.backward_reset_s)
+            backward_reset_s=opt.backward_reset_s, nominal=self.theta)
         self.noise = NoiseFloor(self.theta, cfg.band, cfg.band_order, cfg.rate_hz,
                                 self.noise_variance)
         self.v_invalid = self.noise.speed_for(cfg.noise_limit_m)
@@ -509,10 +516,9 @@ class InputPolicy:
         if self.pipeline is None:
             if not final and self._received < NOISE_SAMPLES:
                 return self._empty()
-            if not final or self._received:
-                self._decide_noise()
-            if self.pipeline is None:
+            if not self._received:
                 return self._empty()
+            self._decide_noise()
         count = len(self._held) if final else self._ready()
         if count == 0:
             return self._empty()
@@ -526,7 +532,7 @@ class InputPolicy:
         out = self.pipeline.push(stamps, vertical(accel, self.config.accel_axis), speed,
                                  frames.astype(str) if strict else None, quality)
         self._reject_finding(count, self.pipeline.counters.get('accepted', 0) - before)
-        return self._finish(out)
+        return self.finish(out)
 
     def _speed_finding(self, speed: np.ndarray, known: np.ndarray) -> None:
         unknown = int((~known).sum())
@@ -590,8 +596,8 @@ class InputPolicy:
         self._findings['rejected'] = Finding('rejected', ERROR, (
             f'every IMU sample is rejected ({text}): {_HINTS[top]}'))
 
-    def _finish(self, out: Output) -> Output:
-        """Count the outputs by quality and set u = NaN where INVALID."""
+    def finish(self, out: Output) -> Output:
+        """Count pipeline outputs by quality and set u = NaN where INVALID."""
         if not len(out):
             return out
         self._counts.update(quality_counts(out.quality))

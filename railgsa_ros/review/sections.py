@@ -35,13 +35,15 @@ class Sections:
 
 def resample(chainage_m: np.ndarray, u_m: np.ndarray, dx: float = DX_M,
              max_step_m: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x (N,), u (N,), valid (N,)) on cells of dx m centred at (i + 1/2) dx from chainage 0."""
+    """(x (N,), u (N,), valid (N,)) on cells of dx m centred at (i + 1/2) dx from chainage 0;
+    cells next to an INVALID (NaN) sample are not valid."""
     c = np.asarray(chainage_m, dtype=float)
     first, last = int(np.floor(c[0] / dx)), int(np.ceil(c[-1] / dx))
     x = (np.arange(first, last) + 0.5) * dx
     right = np.clip(np.searchsorted(c, x), 1, c.size - 1)
     valid = (x >= c[0]) & (x <= c[-1]) & (c[right] - c[right - 1] < max_step_m)
-    return x, np.interp(x, c, u_m), valid
+    u = np.interp(x, c, u_m)
+    return x, u, valid & np.isfinite(u)
 
 
 def section_sd(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray | None = None,

@@ -12,26 +12,29 @@ Per chunk of emitted samples the review updates bounded summaries:
 - the input health (``health.HealthAccumulator``: stamp statistics, messages per second);
 - the sample of largest |PCE mean| with its bank outputs (the histogram), and the window
   records (deferred windows: a few numbers each).
+
+Only the samples the input policy did not mark INVALID enter the summaries (their u is NaN):
+the grid has no valid cell there; the counts by quality are in ``counters``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError
+from railgsa_ros.inverse.policy import PolicyOptions
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Location, Reference
 from railgsa_ros.offline import (
     Driver,
-    HeldSpeed,
     Source,
     Step,
     chunks,
     locate,
-    noise_variance,
     nominal_rate_hz,
     peek,
     steps,
@@ -41,7 +44,7 @@ from railgsa_ros.review.grid import DX_M, Grid, GridBuilder
 from railgsa_ros.review.health import HealthAccumulator, InputHealth
 from railgsa_ros.review.limits import CLASS_UPPER_KMH, Limits, speed_class
 from railgsa_ros.review.sections import SECTION_M, SectionSpeeds
-from railgsa_ros.uncertainty import Sensitivity, UncertaintyConfig
+from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import VehicleParams
@@ -121,6 +124,7 @@ class _Summaries:
         self.first: tuple[int, float] | None = None
         self.last: tuple[int, float] = (0, 0.0)
         self.emitted = 0
+        self.valid = 0  # emitted samples that are not INVALID
 
     def take(self, step: Step) -> None:
         c = step.chainage_m
@@ -135,6 +139,17 @@ class _Summaries:
             self.first = (int(step.stamps_ns[0]), float(c[0]))
         self.last = (int(step.stamps_ns[-1]), float(c[-1]))
         self.emitted += len(step)
+        keep = step.quality != Quality.INVALID
+        if not keep.all():  # the summaries take the samples that are not INVALID
+            step = Step(*(v[keep] for v in (step.stamps_ns, c, step.u_m, step.speed_mps,
+                                            step.quality)),
+                        None if step.band is None else Band(*(getattr(step.band, f.name)[keep]
+                                                              for f in fields(Band))),
+                        None if step.bank_u_m is None else step.bank_u_m[:, keep])
+            if not len(step):
+                return
+            c = step.chainage_m
+        self.valid += len(step)
         band = step.band
         lower = upper = None
         if band is not None:
@@ -168,13 +183,15 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
                dists: Mapping[str, Distribution] | None, limits: Limits,
                reference: Reference | None = None, rate_from_bag: bool = True,
                section_m: float = SECTION_M, chunk: int | None = None,
-               progress: Callable[[int], None] | None = None) -> tuple[ReviewRun,
-                                                                         UncertaintyConfig]:
+               progress: Callable[[int], None] | None = None, *,
+               speed_mps: float | None = None,
+               options: PolicyOptions | None = None) -> tuple[ReviewRun, UncertaintyConfig]:
     """Stream the bag through the driver (nominal pipeline, and the bank unless ``dists`` is
     None) and summarise it; returns the run and the configuration in effect (the IMU rate from
     the first chunk when ``rate_from_bag``). With GNSS in the bag, a first pass over the
     odometry and the fixes locates the run (``location.gnss_pass``). ``progress(IMU samples
-    read)`` after each chunk."""
+    read)`` after each chunk. ``speed_mps``: a fixed speed instead of odometry (required
+    without odometry: InputError otherwise); ``options``: the input policy's options."""
     first, pieces = peek(chunks(source, chunk))
     location = locate(source, int(first.stamps_ns[0]) if first.stamps_ns.size else 0,
                       reference or Reference())
@@ -182,10 +199,15 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
     if rate_from_bag:
         config = config.with_(inversion=inv.with_(rate_hz=nominal_rate_hz(first, source)))
         inv = config.inversion
-    has_odometry = source.odom_topic in source.topics()
-    speed = HeldSpeed(inv.speed_mps, has_odometry, location.scale.value)
-    driver = Driver(config, vehicle, dists, noise_variance(first, inv.accel_axis,
-                                                           inv.noise_std_mps2), speed)
+    options = options if options is not None else PolicyOptions()
+    if speed_mps is not None:
+        config = config.with_(inversion=inv.with_(speed_mps=float(speed_mps)))
+        inv = config.inversion
+        options = replace(options, use_odom=False)
+    elif source.odom_topic not in source.topics():
+        raise InputError(f'{source.bag}: no odometry on {source.odom_topic}: the speed is '
+                         'unknown')
+    driver = Driver(config, vehicle, dists, options, location.scale.value)
     health = HealthAccumulator(inv.gap_factor)
     summaries = _Summaries(source, limits, section_m,
                            driver.bank.design if driver.bank is not None else None)
@@ -201,6 +223,11 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
     if summaries.first is None:
         raise InputError(f'{source.bag}: no usable IMU sample (rejected: '
                          f'{_rejections(driver.counters)})')
+    if summaries.valid == 0:
+        status = driver.nominal.status
+        why = status.message if status.level else 'the run is shorter than the band window'
+        raise InputError(f'{source.bag}: every one of the {summaries.emitted} outputs is '
+                         f'INVALID: {why}')
     grid = summaries.grid.grid()
     if not grid.valid.any():
         raise InputError(f'{source.bag}: the chainage never advances by {DX_M:g} m without a gap '

@@ -70,7 +70,8 @@ def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
     inside, width, count = [], [], 0
     for level in levels:
         cfg = config.with_(lower_quantile=(1 - level) / 2, upper_quantile=(1 + level) / 2)
-        band = offline_bands(run.stamps_ns, run.accel[:, 2], run.speed_mps, config=cfg,
+        band = offline_bands(run.stamps_ns, run.accel, (run.stamps_ns, run.speed_mps),
+                             config=cfg,
                              vehicle=vehicle, dists=dists,
                              noise_variance=accel_covariance(imu_spec(preset)))
         chain = band.chainage_m + run.chainage_m[0]

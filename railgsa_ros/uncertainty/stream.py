@@ -4,10 +4,17 @@ One :class:`~railgsa_ros.inverse.pipeline.InversionPipeline` runs the P rule poi
 vectorised bank (theta (P, 5)). Every emitted sample k carries the bank outputs u (P,); its PCE
 coefficients are a fixed linear map of them (``Design.projector``), the mean is exact from the
 coefficients (c_0), and the lower/upper quantiles come from the surrogate on a fixed scrambled
-Sobol' germ sample (``Design.germ_basis``), per sample. The pipeline's sanitiser, delay line and
-stamps are those of the nominal pipeline with the same inversion config: the band's stamps are
-the ``track/irregularity`` stamps one to one (only the emission lags by the bank's longer FIR
-delay).
+Sobol' germ sample (``Design.germ_basis``), per sample. The bank is fed by an
+:class:`~railgsa_ros.inverse.policy.InputPolicy` with the nominal vehicle: its decisions (speed,
+noise, sanitiser, quality) are a function of the input data and the inversion config alone, so
+they equal those of irregularity_node's policy and the band's stamps and qualities are the
+``track/irregularity`` ones one to one (only the emission lags by the bank's longer FIR delay).
+
+Quality: an INVALID sample's band is NaN (lower, mean, upper); a DEGRADED sample's band is
+widened by the sensor terms' floor (``uncertainty.terms``: std at least max(sigma_u(v),
+noise_limit_m), sigma_u from the policy's noise floor): a DEGRADED sample (bridged input, band
+design held, noise near the limit) is taken to be at least as uncertain as the noisiest VALID
+one. Sensitivity windows use the samples that are not INVALID.
 """
 
 from __future__ import annotations
@@ -18,9 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
+from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design, build_design
-from railgsa_ros.uncertainty.terms import sensor_terms
+from railgsa_ros.uncertainty.terms import SensorTerms
 from railgsa_ros.uncertainty.windows import Sensitivity, WindowAnalyzer
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.uq.uncertainty_file import table3
@@ -35,8 +44,9 @@ OFFLINE_CHUNK = 65536  # samples per push in offline_bands
 @dataclass(frozen=True)
 class Band:
     """Per emitted IMU sample: stamps_ns (K,) int64, chainage_m (K,), lower_m, mean_m and
-    upper_m (K,) in metres (quantiles and PCE mean of the irregularity) and quality (K,) uint8
-    (Quality codes; None in bands built by hand)."""
+    upper_m (K,) in metres (quantiles and PCE mean of the irregularity; NaN where INVALID,
+    widened where DEGRADED) and quality (K,) uint8 (Quality codes; None in bands built by
+    hand)."""
 
     stamps_ns: np.ndarray
     chainage_m: np.ndarray
@@ -60,8 +70,8 @@ class Band:
 @dataclass(frozen=True)
 class Update:
     """What one push/flush produced: the band samples, the closed windows' records, the bank
-    outputs (P, K) m of the band samples (one row per rule point) and their sensor std (K,) m
-    (``uncertainty.terms``)."""
+    outputs (P, K) m of the band samples (one row per rule point; NaN where INVALID) and their
+    sensor std (K,) m (``uncertainty.terms``)."""
 
     band: Band
     windows: list[Sensitivity]
@@ -151,79 +161,117 @@ class UncertaintyStream:
     ``config``: UncertaintyConfig (its ``inversion`` must equal irregularity_node's config for
     the stamps to match); ``vehicle``: nominal parameters (Table 1 by default); ``dists``:
     uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
-    ``noise_variance``: accelerometer variance for the kalman method, (m/s^2)^2; ``defer``:
-    closed windows wait for ``analyze_deferred`` (offline: their deltas run in batches).
+    ``noise_variance``: a fixed accelerometer variance, (m/s^2)^2 (None: the policy's rule);
+    ``options``: the policy's PolicyOptions.
     """
 
     def __init__(self, config: UncertaintyConfig | None = None,
                  vehicle: VehicleParams | None = None,
                  dists: Mapping[str, Distribution] | None = None,
-                 noise_variance: float | None = None, defer: bool = False) -> None:
+                 noise_variance: float | None = None,
+                 options: PolicyOptions | None = None, *, defer: bool = False) -> None:
         self.config = config if config is not None else UncertaintyConfig()
         vehicle = vehicle if vehicle is not None else VehicleParams()
         self.design = build_design(self.config, vehicle,
                                    dists if dists is not None else table3(vehicle))
-        self.pipeline = InversionPipeline(self.config.inversion, self.design.theta,
-                                          noise_variance)
-        self.terms = sensor_terms(self.config, vehicle, noise_variance)
-        self._windows = WindowAnalyzer(self.config, self.design, defer)
+        self.policy = InputPolicy(self.config.inversion, vehicle, bank=self.design.theta,
+                                  options=options, noise_variance=noise_variance)
+        # the sensor terms use the policy's noise floor (its noise decision from the data)
+        self.terms = SensorTerms(self.config, self.policy.noise_std_m)
+        self.windows = WindowAnalyzer(self.config, self.design, defer=defer)
         self._quantiles = (self.config.lower_quantile, self.config.upper_quantile)
 
     @property
+    def pipeline(self) -> InversionPipeline:
+        """The bank pipeline (built now if the policy has not decided the noise yet)."""
+        return self.policy.start()
+
+    @property
     def counters(self) -> dict[str, int]:
-        """The pipeline's counters: rejected samples by reason, gaps, resets, emitted, ..."""
-        return self.pipeline.counters
+        """The policy's counters: rejected samples by reason, gaps, resets, quality, ..."""
+        return self.policy.counters
 
     @property
     def delay_samples(self) -> int:
         """Samples between an IMU sample's arrival and its band output (the bank's FIR delay)."""
         return self.pipeline.delay_samples
 
+    def odometry(self, stamps_ns: np.ndarray, speed_mps: np.ndarray) -> Update:
+        """Odometry samples, as ``InputPolicy.odometry``."""
+        return self.update(self.policy.odometry(stamps_ns, speed_mps))
+
+    def imu(self, stamps_ns: np.ndarray, accel: np.ndarray,
+            frame_ids: np.ndarray | None = None,
+            covariance: np.ndarray | None = None) -> Update:
+        """IMU samples, as ``InputPolicy.imu``: stamps (T,) ns, accel (T, 3) m/s^2, frame ids
+        (T,), REP 145 covariance (T, 9)."""
+        return self.update(self.policy.imu(stamps_ns, accel, frame_ids, covariance))
+
     def push(self, stamps_ns: np.ndarray, acc_z: np.ndarray,
              speed_mps: np.ndarray | float | None = None,
              frame_ids: np.ndarray | None = None) -> Update:
-        """Feed samples as ``InversionPipeline.push``: stamps (T,) int64 ns, upward specific
-        force (T,) m/s^2 incl. gravity, speed (T,) or scalar m/s, frame ids (T,)."""
-        return self._update(self.pipeline.push(stamps_ns, acc_z, speed_mps, frame_ids))
+        """Transition entry of uncertainty_node until it calls ``odometry``/``imu``: vertical
+        samples straight into the bank pipeline (its sanitiser and delay-line quality only;
+        no speed, noise, gravity or rate decision)."""
+        return self.update(self.policy.finish(self.pipeline.push(stamps_ns, acc_z, speed_mps,
+                                                                 frame_ids)))
 
     def flush(self) -> Update:
-        """End of an offline stream (or a restart): emit every pending sample, close the window."""
-        update = self._update(self.pipeline.flush())
-        return Update(update.band, update.windows + self._windows.close(), update.bank_u_m,
+        """End of a stream (or a restart): emit every pending sample, close the window."""
+        update = self.update(self.policy.flush())
+        return Update(update.band, update.windows + self.windows.close(), update.bank_u_m,
                       update.sensor_std_m)
 
     def analyze_deferred(self) -> list[Sensitivity]:
         """With ``defer``: the records of the windows closed so far, in order."""
-        return self._windows.analyze_deferred()
+        return self.windows.analyze_deferred()
 
-    def _update(self, out: Output) -> Update:
+    def update(self, out: Output) -> Update:
+        """Band and closed windows of policy outputs ``out`` (u (P, K), NaN where INVALID)."""
         sensor = self.terms.std(out.stamps_ns, self.design.projector[0] @ out.u_m,
                                 out.speed_mps, out.quality)
-        lower, mean, upper = band_statistics(self.design, self._quantiles, out.u_m, sensor)
-        band = Band(out.stamps_ns, out.chainage_m, lower, mean, upper, out.quality)
-        return Update(band, self._windows.push(out.stamps_ns, out.chainage_m, mean, out.u_m),
+        band = bank_band(self.design, self._quantiles, out, sensor)
+        return Update(band, self.windows.push(out.stamps_ns, out.chainage_m, band.mean_m,
+                                              out.u_m, out.quality != Quality.INVALID),
                       out.u_m, sensor)
 
 
-def offline_bands(stamps_ns: np.ndarray, acc_z: np.ndarray,
-                  speed_mps: np.ndarray | float | None = None,
+def bank_band(design: Design, quantiles: tuple[float, float], out: Output,
+              sensor_std_m: np.ndarray) -> Band:
+    """The band of bank outputs ``out`` with the sensor terms ``sensor_std_m`` (K,) m: NaN
+    where INVALID (the statistics run on the other samples only)."""
+    good = out.quality != Quality.INVALID
+    if good.all():
+        return Band(out.stamps_ns, out.chainage_m,
+                    *band_statistics(design, quantiles, out.u_m, sensor_std_m), out.quality)
+    stats = [np.full(len(out), np.nan) for _ in range(3)]
+    if good.any():
+        for full, part in zip(stats, band_statistics(design, quantiles, out.u_m[:, good],
+                                                     sensor_std_m[good]), strict=True):
+            full[good] = part
+    return Band(out.stamps_ns, out.chainage_m, *stats, out.quality)
+
+
+def offline_bands(stamps_ns: np.ndarray, accel: np.ndarray,
+                  odometry: tuple[np.ndarray, np.ndarray] | None = None,
                   frame_ids: np.ndarray | None = None,
+                  covariance: np.ndarray | None = None,
                   config: UncertaintyConfig | None = None,
                   vehicle: VehicleParams | None = None,
                   dists: Mapping[str, Distribution] | None = None,
-                  noise_variance: float | None = None) -> Band:
+                  noise_variance: float | None = None,
+                  options: PolicyOptions | None = None) -> Band:
     """Bands of a whole recorded stream (``railgsa invert --bands``): the node's streaming code,
-    pushed in chunks, then flushed; stamps equal the nominal pipeline's push + flush stamps."""
+    odometry (stamps, speeds) first, then the IMU in chunks, then flushed; stamps equal the
+    nominal policy's stamps for the same input."""
     config = (config if config is not None else UncertaintyConfig()).with_(qoi='')
-    stream = UncertaintyStream(config, vehicle, dists, noise_variance)
+    stream = UncertaintyStream(config, vehicle, dists, noise_variance, options)
+    parts = [stream.odometry(*odometry).band] if odometry is not None else []
     stamps = np.asarray(stamps_ns, dtype=np.int64)
-    speed = None if speed_mps is None else np.broadcast_to(np.asarray(speed_mps, float),
-                                                           stamps.shape)
-    parts = []
     for lo in range(0, stamps.size, OFFLINE_CHUNK):
         sl = slice(lo, lo + OFFLINE_CHUNK)
-        parts.append(stream.push(stamps[sl], np.asarray(acc_z)[sl],
-                                 None if speed is None else speed[sl],
-                                 None if frame_ids is None else np.asarray(frame_ids)[sl]).band)
+        parts.append(stream.imu(stamps[sl], accel[sl],
+                                None if frame_ids is None else frame_ids[sl],
+                                None if covariance is None else covariance[sl]).band)
     parts.append(stream.flush().band)
     return Band.concat(parts)

@@ -115,11 +115,18 @@ class WindowAnalyzer:
         return (stamps - self._origin) // self._length_ns
 
     def push(self, stamps: np.ndarray, chain: np.ndarray, mean: np.ndarray,
-             u: np.ndarray) -> list[Sensitivity]:
-        """Emitted samples: stamps (K,) ns, chainage (K,) m, PCE mean (K,), bank u (P, K)."""
+             u: np.ndarray, valid: np.ndarray | None = None) -> list[Sensitivity]:
+        """Emitted samples: stamps (K,) ns, chainage (K,) m, PCE mean (K,), bank u (P, K);
+        ``valid`` (K,): the samples the windows take (the others, INVALID ones, only place the
+        origin: the first emitted stamp)."""
         if not self.config.qois or stamps.size == 0:
             return []
         idx = self._index(stamps, chain)
+        if valid is not None and not valid.all():
+            stamps, chain, mean, u, idx = (stamps[valid], chain[valid], mean[valid],
+                                           u[:, valid], idx[valid])
+            if stamps.size == 0:
+                return []
         cuts = np.flatnonzero(np.diff(idx)) + 1
         out = []
         for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [idx.size]]),
