@@ -63,6 +63,7 @@ class ImuIntake:
         self._node = node
         self._on_messages = on_messages
         self.counts: Counter[str] = Counter()
+        self.depth = int(values['imu_qos_depth'])  #: reader history, messages
         self.odom: tuple[int, float] | None = None  #: newest (stamp ns, speed m/s)
         self.odom_missing = False  #: use_odom but no fresh odometry at the last batch
         self.speed_mps = float(values['speed_mps'])  #: speed used for the last batch
@@ -96,6 +97,11 @@ class ImuIntake:
                     break
                 msgs.append(taken[0])
         return msgs
+
+    def take_waiting(self) -> list[Imu]:
+        """The messages waiting now, at most one reader history (bounded while a burst still
+        comes in: for the last batch before deactivate and shutdown)."""
+        return self.take(limit=self.depth)
 
     def _on_imu(self, msg: Imu) -> None:
         if self._on_messages is not None:

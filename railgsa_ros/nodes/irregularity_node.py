@@ -143,10 +143,11 @@ class IrregularityNode(ManagedNode):
                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def deactivate(self) -> None:
-        """Process the input waiting in the reader, flush the filters, publish and await the
-        acknowledgement of every output; then stop taking input and reporting."""
+        """Process the input waiting in the reader (one history at most), flush the filters,
+        publish and await the acknowledgement of every output; then stop taking input and
+        reporting."""
         if self._intake is not None:
-            while msgs := self._intake.take():
+            if msgs := self._intake.take_waiting():
                 self.process(msgs)
             self._flush('flush_deactivate')
             self._pacer.finish()

@@ -167,10 +167,11 @@ class UncertaintyNode(ManagedNode):
         self._diagnostics.add('uncertainty', self._report_uncertainty)
 
     def deactivate(self) -> None:
-        """Process the input waiting in the reader, flush the stream, publish and await the
-        acknowledgement of every band output; then stop taking input and reporting."""
+        """Process the input waiting in the reader (one history at most), flush the stream,
+        publish and await the acknowledgement of every band output; then stop taking input and
+        reporting."""
         if self._intake is not None:
-            while msgs := self._intake.take(limit=MAX_BATCH):
+            if msgs := self._intake.take_waiting():
                 self.process(msgs)
             self._flush('flush_deactivate')
             self._pacer.finish()
