@@ -248,3 +248,41 @@ def test_bridged_stretch_degrades_its_window():
     assert np.all(out.quality[near] >= Quality.DEGRADED)
     far = (out.stamps_ns < t_gap[0] - (d + 2) * 1e6) & (out.quality != Quality.INVALID)
     assert far.sum() > 1000 and np.all(out.quality[far] == Quality.VALID)
+
+
+def _noise_only(policy: InputPolicy, rate_hz: float, sigma: float, seconds: float) -> Output:
+    """Gravity plus white noise of std ``sigma`` on z, at a fixed speed: the reconstruction is
+    pure propagated sensor noise."""
+    n = int(seconds * rate_hz)
+    accel = np.zeros((n, 3))
+    accel[:, 2] = 9.80665 + sigma * np.random.default_rng(11).standard_normal(n)
+    stamps = 10**18 + np.arange(n, dtype=np.int64) * round(1e9 / rate_hz)
+    return Output.concat([policy.imu(stamps, accel), policy.flush()])
+
+
+def test_low_speed_threshold_matches_a_noise_only_monte_carlo():
+    """sigma_u(v) of the noise floor (the integral over 1/G and the band) against the std of
+    the reconstruction of 900 s of pure sensor noise through the pipeline (band designed at the
+    speed itself: min_design_speed_mps 2 m/s), and the INVALID speed it derives."""
+    rate, sigma, limit = 200.0, 0.02, 1e-3
+
+    def policy(speed):
+        cfg = InversionConfig(rate_hz=rate, speed_mps=speed, min_design_speed_mps=2.0,
+                              max_speed_mps=10.0, noise_limit_m=limit)
+        return InputPolicy(cfg, options=PolicyOptions(use_odom=False, stuck_s=0.0),
+                           noise_variance=sigma ** 2)
+
+    v_invalid = policy(5.0).v_invalid
+    assert 2.0 < v_invalid < 3.0  # where sigma_u(v) = 1 mm for this sensor
+    for speed in (1.1 * v_invalid, 3.0, 5.0):
+        p = policy(speed)
+        out = _noise_only(p, rate, sigma, 900.0)
+        kept = out.quality != Quality.INVALID
+        assert kept.sum() > 800 * rate
+        measured = np.std(out.u_m[kept])
+        predicted = float(p.noise_std_m(np.array([speed]))[0])
+        # 900 s of noise in a band 0.1-1.7 Hz wide: about 500 independent values, 3 % error
+        assert measured == pytest.approx(predicted, rel=0.08), speed
+    # at 1.1 v_invalid the measured noise is just below the limit; below v_invalid: INVALID
+    slow = _noise_only(policy(0.95 * v_invalid), rate, sigma, 300.0)
+    assert np.all(slow.quality == Quality.INVALID) and np.all(np.isnan(slow.u_m))
