@@ -286,3 +286,29 @@ def test_low_speed_threshold_matches_a_noise_only_monte_carlo():
     # at 1.1 v_invalid the measured noise is just below the limit; below v_invalid: INVALID
     slow = _noise_only(policy(0.95 * v_invalid), rate, sigma, 300.0)
     assert np.all(slow.quality == Quality.INVALID) and np.all(np.isnan(slow.u_m))
+
+
+def test_band_follows_the_policy_at_variable_speed(stop_and_go):
+    """uncertainty_node's streaming code through its own policy over the bank: the same
+    stamps and qualities as the nominal policy, NaN where INVALID, widened where DEGRADED."""
+    from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
+
+    run = stop_and_go
+    cfg = InversionConfig(rate_hz=run.rate_hz)
+    ref = offline(run, InputPolicy(cfg))
+    band = offline_bands(run.stamps_ns, run.accel,
+                         (run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY]),
+                         covariance=_covariance(run),
+                         config=UncertaintyConfig(inversion=cfg, rule='pem3', order=1,
+                                                  germ_samples=256))
+    np.testing.assert_array_equal(band.stamps_ns, ref.stamps_ns)
+    np.testing.assert_array_equal(band.quality, ref.quality)
+    invalid = band.quality == Quality.INVALID
+    for values in (band.lower_m, band.mean_m, band.upper_m):
+        assert np.all(np.isnan(values[invalid])) and np.all(np.isfinite(values[~invalid]))
+    degraded = band.quality == Quality.DEGRADED
+    assert degraded.sum() > 1000
+    # the DEGRADED floor: a sensor std of at least noise_limit_m, about 1.96 of it each side
+    # (the 2.5/97.5 % quantiles of 256 germ samples: 1.87 at the least here)
+    half = (band.upper_m - band.lower_m)[degraded] / 2
+    assert np.all(half >= 1.8 * cfg.noise_limit_m)
