@@ -38,7 +38,7 @@ def test_csv_with_odometry_tracks_truth(bag, tmp_path):
     out = tmp_path / 'u.csv'
     assert main(['invert', str(path), '--csv', str(out), '--method', 'feedback']) == 0
     lines, data = read_csv(out)
-    assert lines[0] == 't_s,chainage_m,u_m,quality'
+    assert lines[0] == 't_s,chainage_m,u_m,quality,km,lat,lon'
     stamps = np.array([int(line.split(',')[0].replace('.', '')) for line in lines[1:]])
     assert np.array_equal(stamps, run.stamps_ns)
     # odometry at 50 Hz, held: chainage within a few cm of the true travel
@@ -146,6 +146,7 @@ def test_rate_hz_disagreeing_with_the_bag_exits_2(bag, tmp_path, capsys):
 def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     """--bands columns equal uncertainty_node's streaming code (pushed in odd chunks) on the
     same samples, and the band brackets its own PCE mean."""
+    from railgsa_ros.bag import read_imu
     from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream
     from railgsa_ros.uncertainty.stream import Band
 
@@ -153,7 +154,7 @@ def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     out = tmp_path / 'u.csv'
     assert main(['invert', str(path), '--csv', str(out), '--bands']) == 0
     lines, data = read_csv(out)
-    assert lines[0] == 't_s,chainage_m,u_m,quality,lower_m,mean_m,upper_m'
+    assert lines[0] == 't_s,chainage_m,u_m,quality,lower_m,mean_m,upper_m,km,lat,lon'
     import argparse
 
     from railgsa_ros.cli import invert
@@ -163,7 +164,7 @@ def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     inp = invert.load_inputs(parser.parse_args(['invert', str(path), '--csv', str(out)]))
     live = UncertaintyStream(UncertaintyConfig(inversion=inp.config, qoi=''), inp.vehicle,
                              options=inp.options)
-    rec = inp.stream
+    rec = read_imu(path)  # the whole stream at once, fed in odd batches below
     parts = [live.odometry(rec.odom_stamps_ns, rec.speed_mps).band]
     edges = np.cumsum(np.random.default_rng(1).integers(1, 900, rec.stamps_ns.size))
     for lo, hi in zip(np.concatenate([[0], edges]), edges, strict=False):
@@ -175,7 +176,7 @@ def test_bands_are_the_uncertainty_stream(bag, tmp_path):
     stamps = np.array([int(line.split(',')[0].replace('.', '')) for line in lines[1:]])
     assert np.array_equal(stamps, ref.stamps_ns)
     np.testing.assert_array_equal(data[:, 3], ref.quality)
-    for col, want in zip(data[:, 4:].T, (ref.lower_m, ref.mean_m, ref.upper_m), strict=True):
+    for col, want in zip(data[:, 4:7].T, (ref.lower_m, ref.mean_m, ref.upper_m), strict=True):
         np.testing.assert_allclose(col, want, rtol=1e-8, atol=1e-12)  # nan where INVALID
     ok = data[:, 3] != 2
     assert np.all(data[ok, 4] <= data[ok, 5]) and np.all(data[ok, 5] <= data[ok, 6])

@@ -258,6 +258,32 @@ def test_simulated_gnss_and_wheel_error_put_defects_within_1_m_of_the_truth(tmp_
     assert np.all(np.hypot(east - true_e, north - true_n) < 2.0)
 
 
+def test_invert_csv_has_km_and_positions_and_the_corrected_chainage(tmp_path: Path,
+                                                                    capsys) -> None:
+    from railgsa_ros.geo import default_line
+
+    bag = tmp_path / 'sim'
+    assert main(['simulate', '--out', str(bag), '--speed', '30', '--duration', '40',
+                 '--odom-scale-error', '0.004', '--gnss', '--seed', '5']) == 0
+    out = tmp_path / 'u.csv'
+    assert main(['invert', str(bag), '--csv', str(out), '--km-origin', '7.5',
+                 '--direction', 'decreasing']) == 0
+    assert 'odometry scale 0.99' in capsys.readouterr().err
+    with out.open(encoding='utf-8') as f:
+        rows = list(csv.DictReader(f))
+    chainage = np.array([float(r['chainage_m']) for r in rows])
+    km = np.array([float(r['km']) for r in rows])
+    np.testing.assert_allclose(km, 7.5 - chainage / 1e3, atol=1e-6)
+    truth = read_imu(bag)  # the true distance: 30 m/s over the IMU stamps
+    travelled = 30.0 * (truth.stamps_ns[-1] - truth.stamps_ns[0]) * 1e-9
+    assert chainage[-1] == pytest.approx(travelled, abs=1.0)  # 4.8 m more without GNSS
+    lat, lon = (np.array([float(r[k]) for r in rows]) for k in ('lat', 'lon'))
+    true_lat, true_lon = default_line(1300.0).position(chainage[::500])
+    east, north = to_local(lat[::500], lon[::500], (float(true_lat[0]), float(true_lon[0])))
+    true_e, true_n = to_local(true_lat, true_lon, (float(true_lat[0]), float(true_lon[0])))
+    assert np.all(np.hypot(east - true_e, north - true_n) < 3.0)
+
+
 def test_review_writes_defects_sections_and_a_json_summary(tmp_path: Path, capsys) -> None:
     run = run_scenario('german-low', 25.0, 40.0, 1000.0, 'adxl355', 7,
                        defects='dip@400:len=6:depth=0.03')

@@ -1,19 +1,25 @@
 """``railgsa invert``: reconstruct the track irregularity from the IMU stream of a bag.
 
-Runs the nodes' ``InputPolicy`` (every input decision: speed, noise, sanitising, quality) over
-the bag in chunks and writes ``t_s,chainage_m,u_m,quality`` (t_s = IMU stamp in s; quality 0
-VALID, 1 DEGRADED, 2 INVALID with u = nan) for every accepted sample, or with ``--out`` the
-node's ``/track/irregularity`` topic (geometry_msgs/PointStamped, frame ``track``, point.x =
+Streams the bag in pieces (``offline.Driver``: the nodes' ``InputPolicy``, every input decision
+- speed, noise, sanitising, quality - then the pipeline) and writes as the samples come out:
+``t_s,chainage_m,u_m,quality[,lower_m,mean_m,upper_m],km,lat,lon`` (t_s = IMU stamp in s;
+quality 0 VALID, 1 DEGRADED, 2 INVALID with u = nan; km-post of the chainage; WGS84 position
+from GNSS, nan without) for every accepted sample, or with ``--out`` the node's
+``/track/irregularity`` topic (geometry_msgs/PointStamped, frame ``track``, point.x =
 chainage, point.y = quality code, point.z = irregularity, NaN when INVALID, header stamp = log
 time = IMU stamp) to a rosbag2 bag. The speed is the bag's odometry (exit 2 without it) unless
-``--speed`` fixes it; ``rate_hz`` defaults to the measured IMU rate.
-``--bands`` adds ``lower_m,mean_m,upper_m`` (uncertainty_node's ``/track/irregularity_band``)
-computed by the node's streaming code (``railgsa_ros.uncertainty.offline_bands``).
+``--speed`` fixes it, times the odometry scale when the bag has GNSS (``railgsa_ros.location``);
+``rate_hz`` defaults to the IMU rate measured on the first piece. ``--bands`` adds
+``lower_m,mean_m,upper_m`` (uncertainty_node's ``/track/irregularity_band``) from the node's
+streaming code (``UncertaintyStream``) fed the same pieces. Memory: a piece and the filters'
+delay lines, whatever the length of the run.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 import sys
@@ -22,7 +28,6 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
-CHUNK = 65536  # IMU samples per policy call
 REJECTIONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
 OUT_TOPIC = '/track/irregularity'
 GRID_TOPIC = '/track/irregularity_grid'  # --grid: the profile at a fixed chainage step
@@ -31,6 +36,8 @@ BAND_TOPIC = '/track/irregularity_band'
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``invert`` subcommand."""
+    from railgsa_ros.cli.review import add_location_options
+
     p = subparsers.add_parser(
         'invert', help='reconstruct track irregularity from a bag (CSV or bag output)',
         description='Reconstruct the vertical track irregularity from the car-body '
@@ -38,7 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     'pipeline of irregularity_node.')
     p.add_argument('bag', metavar='BAG', help='rosbag2 bag directory or file')
     out = p.add_mutually_exclusive_group(required=True)
-    out.add_argument('--csv', metavar='OUT.csv', help='write t_s,chainage_m,u_m')
+    out.add_argument('--csv', metavar='OUT.csv',
+                     help='write t_s,chainage_m,u_m,quality[,lower_m,mean_m,upper_m],km,lat,lon')
     out.add_argument('--out', metavar='OUT.mcap', help='write /track/irregularity to a bag')
     p.add_argument('--method', choices=('spectral', 'feedback', 'kalman'),
                    help='inversion method (default: the params file, else spectral)')
@@ -70,6 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--uncertainty-params', metavar='FILE',
                    help='ROS params file with uncertainty_node: ros__parameters: (rule, order, '
                    'quantiles) for --bands')
+    add_location_options(p)
     p.add_argument('--overwrite', action='store_true', help='replace an existing output')
     p.set_defaults(func=run)
 
@@ -79,18 +88,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 POLICY_PARAMS = ('odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s')
 
 
-def build_config(args: argparse.Namespace, rate_hz: float) -> tuple[object, object]:
-    """(InversionConfig, PolicyOptions) from the params file (if any), then the command line.
-    rate_hz defaults to the bag's measured rate; a given rate_hz that disagrees with it beyond
-    rate_tolerance is a ConfigError (the filters would be designed for another rate)."""
+def build_config(args: argparse.Namespace, rate_hz: float) -> tuple[object, object, object]:
+    """(InversionConfig, PolicyOptions, location Reference) from the params file (if any), then
+    the command line. rate_hz defaults to the bag's measured rate; a given rate_hz that
+    disagrees with it beyond rate_tolerance is a ConfigError (the filters would be designed for
+    another rate)."""
     from railgsa_ros.cli._params import read_params
+    from railgsa_ros.cli.review import LOCATION_KEYS, reference
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
     from railgsa_ros.inverse.policy import PolicyOptions
 
-    known = set(InversionConfig.__dataclass_fields__) | set(POLICY_PARAMS)
+    known = set(InversionConfig.__dataclass_fields__) | set(POLICY_PARAMS) | set(LOCATION_KEYS)
     params = read_params(args.params, (NODE_NAME,), known, 'invert') if args.params else {}
     options = {k: params.pop(k) for k in POLICY_PARAMS if k in params}
+    location = reference(args, {k: params.pop(k) for k in LOCATION_KEYS if k in params})
     given = 'rate_hz' in params
     params.setdefault('rate_hz', rate_hz)
     for name in ('method', 'band'):
@@ -113,7 +125,7 @@ def build_config(args: argparse.Namespace, rate_hz: float) -> tuple[object, obje
         policy = PolicyOptions(use_odom=args.speed is None, **options)
     except ConfigError as exc:
         raise ConfigError(f'{source}: {exc}') from None
-    return cfg, policy
+    return cfg, policy, location
 
 
 def sensor_delay(text: str) -> float:
@@ -134,100 +146,49 @@ def sensor_delay(text: str) -> float:
 
 @dataclass(frozen=True)
 class Inputs:
-    """What the bag and the options give the policy: the recorded stream and the settings."""
+    """What the bag and the options give the driver: the bag's pieces (the first one read to
+    measure the rate) and the settings, with the run's location."""
 
-    stream: object
+    source: object
+    pieces: object
     config: object
     options: object
     vehicle: object
-
-
-def measured_rate(stamps_ns: np.ndarray, bag: str, topic: str) -> float:
-    """The IMU rate (Hz): 1 / the median positive stamp step; InputError with fewer than two
-    distinct stamps."""
-    import numpy as np
-
-    from railgsa_ros.errors import InputError
-
-    steps = np.diff(stamps_ns)
-    steps = steps[steps > 0]
-    if steps.size == 0:
-        raise InputError(f'{bag}: {topic} needs at least two distinct stamps')
-    return 1e9 / float(np.median(steps))
+    location: object
 
 
 def load_inputs(args: argparse.Namespace) -> Inputs:
-    """Read the bag and build the settings (InputError/ConfigError naming the file); exit 2
-    without odometry unless --speed is given."""
+    """Open the bag and build the settings (InputError/ConfigError naming the file); exit 2
+    without odometry unless --speed is given. The rate is measured on the first piece; with
+    GNSS in the bag, the location pass runs first (``offline.locate``)."""
     import numpy as np
 
-    from railgsa_ros.bag import read_imu
     from railgsa_ros.errors import ConfigError, InputError
+    from railgsa_ros.offline import Source, chunks, locate, nominal_rate_hz, peek
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     if args.speed is not None and not (np.isfinite(args.speed) and args.speed > 0):
         raise ConfigError(f'--speed: expected a positive number of m/s, got {args.speed!r}')
-    stream = read_imu(args.bag, args.imu_topic, args.odom_topic)
-    cfg, options = build_config(args, measured_rate(stream.stamps_ns, args.bag, args.imu_topic))
-    if args.speed is None and stream.odom_stamps_ns.size == 0:
+    source = Source(Path(args.bag), args.imu_topic, args.odom_topic, args.gnss_topic)
+    first, pieces = peek(chunks(source))
+    cfg, options, reference = build_config(args, nominal_rate_hz(first, source))
+    if args.speed is None and args.odom_topic not in source.topics():
         raise InputError(f'{args.bag}: no odometry on {args.odom_topic} and no --speed: the '
                          'speed is unknown (give --speed MPS or --odom-topic)')
     vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
-    return Inputs(stream, cfg, options, vehicle)
+    start = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
+    return Inputs(source, pieces, cfg, options, vehicle, locate(source, start, reference))
 
 
-def feed(policy: object, stream: object, use_odom: bool, chunk: int = CHUNK) -> list:
-    """The offline feeding of a policy (or UncertaintyStream): the odometry in recorded order
-    (with ``use_odom``), then the IMU in chunks, then flush; returns every result in order."""
-    outs = []
-    if use_odom:
-        outs.append(policy.odometry(stream.odom_stamps_ns, stream.speed_mps))
-    for i in range(0, stream.stamps_ns.size, chunk):
-        sl = slice(i, i + chunk)
-        outs.append(policy.imu(stream.stamps_ns[sl], stream.accel[sl], stream.frame_ids[sl],
-                               stream.covariance[sl]))
-    outs.append(policy.flush())
-    return outs
-
-
-def invert_bag(args: argparse.Namespace) -> tuple[object, object, Inputs]:
-    """Run the policy over the bag: (Output of every accepted sample, policy, inputs);
-    InputError when no sample is usable (every one rejected). With --grid the filters are
-    those in front of the chainage grid (``inverse.grid.grid_config``)."""
-    from railgsa_ros.errors import InputError
-    from railgsa_ros.inverse.grid import grid_config
-    from railgsa_ros.inverse.pipeline import Output
-    from railgsa_ros.inverse.policy import InputPolicy
-
-    inp = load_inputs(args)
-    policy = InputPolicy(grid_config(inp.config) if args.grid is not None else inp.config,
-                         inp.vehicle, options=inp.options)
-    out = Output.concat(feed(policy, inp.stream, inp.options.use_odom))
-    if len(out) == 0:
-        counts = policy.counters
-        rejected = ', '.join(f'{k} {counts[k]}' for k in REJECTIONS if counts.get(k)) or 'none'
-        raise InputError(f'{args.bag}: no usable IMU sample (rejected: {rejected}): '
-                         f'{policy.status.message}')
-    return out, policy, inp
-
-
-def on_grid(out: object, config: object, step_m: float) -> object:
-    """The output (of a pipeline with ``grid_config(config)``) on chainage multiples of step_m,
-    band-passed on distance with config's band (``inverse.grid.ChainageGrid``)."""
-    from railgsa_ros.inverse.grid import ChainageGrid, GridOutput
-
-    grid = ChainageGrid.for_config(config, step_m)
-    return GridOutput.concat([grid.push(out), grid.flush()])
-
-
-def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
-    """uncertainty_node's band for the same samples; its stamps equal the pipeline output's."""
-    import numpy as np
-
+def make_driver(args: argparse.Namespace, inp: Inputs) -> object:
+    """The offline driver: the nominal policy (with --grid, the filters in front of the
+    chainage grid, ``inverse.grid.grid_config``) and with --bands uncertainty_node's stream for
+    the same samples, the odometry scaled as GNSS found it."""
     from railgsa_ros.cli._params import read_params
-    from railgsa_ros.errors import InputError
-    from railgsa_ros.uncertainty import Band, UncertaintyConfig, UncertaintyStream
-    from railgsa_ros.uq.uncertainty_file import load_uncertainty
+    from railgsa_ros.inverse.grid import grid_config
+    from railgsa_ros.offline import Driver
+    from railgsa_ros.uncertainty import UncertaintyConfig
+    from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
 
     base = UncertaintyConfig()
     if args.uncertainty_params:  # the inversion comes from --params (equal to the node's)
@@ -235,88 +196,144 @@ def bands_for(args: argparse.Namespace, inp: Inputs, out: object) -> object:
         base = UncertaintyConfig.from_mapping(read_params(
             args.uncertainty_params, ('uncertainty_node',), known, 'invert --bands'),
             args.uncertainty_params)
-    stream = UncertaintyStream(base.with_(inversion=inp.config, qoi=''), inp.vehicle,
-                               load_uncertainty(args.uncertainty) if args.uncertainty else None,
-                               options=inp.options)
-    band = Band.concat([update.band for update in
-                       feed(stream, inp.stream, inp.options.use_odom)])
-    if not (np.array_equal(band.stamps_ns, out.stamps_ns)
-            and np.array_equal(band.quality, out.quality)):
-        raise InputError(f'{args.bag}: band and irregularity samples differ (internal error)')
-    return band
+    config = grid_config(inp.config) if args.grid is not None else inp.config
+    dists = None
+    if args.bands:
+        dists = load_uncertainty(args.uncertainty) if args.uncertainty else table3(inp.vehicle)
+    return Driver(base.with_(inversion=config, qoi=''), inp.vehicle, dists, inp.options,
+                  inp.location.scale.value)
 
 
-def write_csv(path: str | Path, out: object, band: object | None, overwrite: bool) -> None:
-    """``t_s,chainage_m,u_m,quality[,lower_m,mean_m,upper_m]``, stamps printed exactly from
-    their ns; quality 0 VALID, 1 DEGRADED, 2 INVALID (u and the band 'nan')."""
+def _times(stamps_ns: np.ndarray) -> np.ndarray:
+    """Stamps (ns) as exact decimal seconds (str)."""
     import numpy as np
 
+    sec, nsec = np.divmod(stamps_ns, 1_000_000_000)
+    return np.char.add(np.char.add(sec.astype(str), '.'), np.char.zfill(nsec.astype(str), 9))
+
+
+class CsvRows:
+    """``t_s,chainage_m,u_m,quality[,lower_m,mean_m,upper_m],km,lat,lon`` appended chunk by
+    chunk to an open file: stamps printed exactly from their ns; quality 0 VALID, 1 DEGRADED,
+    2 INVALID (u and the band 'nan'); km-post of the chainage; WGS84 position ('nan' without
+    GNSS)."""
+
+    def __init__(self, handle: object, band: bool, location: object) -> None:
+        self.handle, self.band, self.location = handle, band, location
+        header = 't_s,chainage_m,u_m,quality' + (',lower_m,mean_m,upper_m' if band else '')
+        handle.write(header + ',km,lat,lon\n')
+
+    def write(self, stamps_ns: np.ndarray, chainage_m: np.ndarray, u_m: np.ndarray,
+              quality: np.ndarray, band: object | None = None) -> None:
+        import numpy as np
+
+        if stamps_ns.size == 0:
+            return
+        lat, lon = self.location.lat_lon(chainage_m)
+        values = [chainage_m, u_m, quality]
+        if self.band:
+            values += [band.lower_m, band.mean_m, band.upper_m]
+        values += [self.location.reference.km(chainage_m), lat, lon]
+        cols = np.column_stack(values)
+        fmt = ','.join(['%.4f', '%.9e', '%d'] + ['%.9e'] * (3 if self.band else 0)
+                       + ['%.6f', '%.7f', '%.7f'])
+        body = np.char.add(np.char.add(_times(stamps_ns), ','),
+                           np.array([fmt % tuple(r) for r in cols]))
+        self.handle.write('\n'.join(body.tolist()) + '\n')
+
+
+class BagBatches:
+    """The nodes' topics written batch by batch, log time = header stamp = IMU stamp:
+    ``topic`` (PointStamped: x chainage, y quality code, z irregularity, NaN when INVALID) and
+    with a band ``/track/irregularity_band`` (Vector3Stamped: x lower, y mean, z upper)."""
+
+    def __init__(self, bag: object, band: bool, topic: str) -> None:
+        from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED, history_depth, qos
+
+        self.bag, self.topic = bag, topic
+        self.topics = {topic: POINT_STAMPED, **({BAND_TOPIC: VECTOR3_STAMPED} if band else {})}
+        for name, layout in self.topics.items():
+            bag.add_topic(name, layout.msgtype, qos(True, history_depth(1000.0)))
+
+    def write(self, stamps_ns: np.ndarray, chainage_m: np.ndarray, u_m: np.ndarray,
+              quality: np.ndarray, band: object | None = None) -> None:
+        import numpy as np
+
+        from railgsa_ros.bag.cdr import encode
+
+        if stamps_ns.size == 0:
+            return
+        values = {self.topic: np.column_stack([chainage_m, quality, u_m])}
+        if band is not None:
+            values[BAND_TOPIC] = np.column_stack([band.lower_m, band.mean_m, band.upper_m])
+        self.bag.write_batches({name: (stamps_ns, encode(self.topics[name], stamps_ns,
+                                                          ['track'], v))
+                                for name, v in values.items()})
+
+
+@contextmanager
+def output(args: argparse.Namespace, location: object) -> Iterator[object]:
+    """The CSV rows or bag batches of ``args``, written atomically (nothing left on error)."""
+    from railgsa_ros.bag import BagWriter
     from railgsa_ros.fileio import atomic_output
 
-    sec, nsec = np.divmod(out.stamps_ns, 1_000_000_000)
-    t = np.char.add(np.char.add(sec.astype(str), '.'), np.char.zfill(nsec.astype(str), 9))
-    header = 't_s,chainage_m,u_m,quality'
-    values = [out.chainage_m, out.u_m, out.quality]
-    if band is not None:
-        header += ',lower_m,mean_m,upper_m'
-        values += [band.lower_m, band.mean_m, band.upper_m]
-    cols = np.column_stack(values)
-    fmt = ','.join(['%.4f', '%.9e', '%d'] + ['%.9e'] * (cols.shape[1] - 3))
-    body = np.char.add(np.char.add(t, ','), np.array([fmt % tuple(r) for r in cols]))
-    with atomic_output(path, overwrite) as tmp:
-        tmp.write_text('\n'.join([header, *body]) + '\n', encoding='utf-8')
-
-
-def write_bag(path: str | Path, out: object, band: object | None, overwrite: bool,
-              topic: str = OUT_TOPIC) -> None:
-    """The nodes' topics, log time = header stamp = IMU stamp: ``/track/irregularity``
-    (PointStamped: x chainage, y quality code, z irregularity, NaN when INVALID) and with a
-    band ``/track/irregularity_band`` (Vector3Stamped: x lower, y mean, z upper)."""
-    import numpy as np
-
-    from railgsa_ros.bag import BagWriter
-    from railgsa_ros.bag.cdr import encode
-    from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED, history_depth, qos
-
-    values = np.zeros((out.stamps_ns.size, 3))
-    values[:, 0], values[:, 1], values[:, 2] = out.chainage_m, out.quality, out.u_m
-    topics = {topic: (POINT_STAMPED, values)}
-    if band is not None:
-        topics[BAND_TOPIC] = (VECTOR3_STAMPED,
-                              np.column_stack([band.lower_m, band.mean_m, band.upper_m]))
-    with BagWriter(path, 'mcap', overwrite=overwrite) as bag:
-        for topic, (layout, _) in topics.items():
-            bag.add_topic(topic, layout.msgtype, qos(True, history_depth(1000.0)))
-        bag.write_batches({topic: (out.stamps_ns, encode(layout, out.stamps_ns, ['track'], v))
-                           for topic, (layout, v) in topics.items()})
+    if args.csv:
+        with atomic_output(args.csv, args.overwrite) as tmp, \
+                tmp.open('w', encoding='utf-8') as handle:
+            yield CsvRows(handle, args.bands, location)
+    else:
+        with BagWriter(args.out, 'mcap', overwrite=args.overwrite) as bag:
+            yield BagBatches(bag, args.bands, GRID_TOPIC if args.grid is not None else OUT_TOPIC)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Invert the bag and write the result; prints a one-line summary to stderr."""
+    """Invert the bag chunk by chunk, writing as the samples come out (memory bounded by a
+    chunk, not the run); prints a one-line summary to stderr."""
+    from railgsa_ros.errors import ConfigError, InputError
     from railgsa_ros.fileio import refuse_overlap
+    from railgsa_ros.inverse.grid import ChainageGrid
+    from railgsa_ros.inverse.pipeline import Output
+    from railgsa_ros.offline import steps
 
     refuse_overlap(args.csv or args.out, (args.bag, args.params, args.vehicle, args.uncertainty,
                                           args.uncertainty_params))
     if args.grid is not None and args.bands:
-        from railgsa_ros.errors import ConfigError
-
         raise ConfigError('--bands: the uncertainty band is per IMU sample; not with --grid')
-    out, policy, inp = invert_bag(args)
-    if args.grid is not None:
-        out = on_grid(out, inp.config, args.grid)
-    band = bands_for(args, inp, out) if args.bands else None
-    if args.csv:
-        write_csv(args.csv, out, band, args.overwrite)
-    else:
-        write_bag(args.out, out, band, args.overwrite,
-                  GRID_TOPIC if args.grid is not None else OUT_TOPIC)
-    for finding in policy.findings:
+    inp = load_inputs(args)
+    driver = make_driver(args, inp)
+    grid = ChainageGrid.for_config(inp.config, args.grid) if args.grid is not None else None
+    count = usable = 0
+    with output(args, inp.location) as sink:
+        for step in steps(driver, inp.pieces):
+            if grid is None:
+                sink.write(step.stamps_ns, step.chainage_m, step.u_m, step.quality, step.band)
+                count, usable = count + len(step), usable + int((step.quality != 2).sum())
+                continue
+            g = grid.push(Output(step.stamps_ns, step.chainage_m, step.u_m, step.quality,
+                                 step.speed_mps))
+            sink.write(g.stamps_ns, g.chainage_m, g.u_m, g.quality)
+            count, usable = count + len(g), usable + int((g.quality != 2).sum())
+        if grid is not None:
+            g = grid.flush()
+            sink.write(g.stamps_ns, g.chainage_m, g.u_m, g.quality)
+            count, usable = count + len(g), usable + int((g.quality != 2).sum())
+        if count == 0:  # nothing written: the temporary output goes
+            counts = driver.counters
+            rejected = ', '.join(f'{k} {counts[k]}' for k in REJECTIONS if counts.get(k)) or \
+                'none'
+            raise InputError(f'{args.bag}: no usable IMU sample (rejected: {rejected}): '
+                             f'{driver.nominal.status.message}')
+    for finding in driver.nominal.findings:
         if finding.level:
             print(f'warning: {finding.message}', file=sys.stderr)
-    if not (out.quality != 2).any():
+    if usable == 0:
         print('warning: every output is INVALID (u = nan): see the warnings above, or the run '
               'is shorter than the band window', file=sys.stderr)
-    counts = ', '.join(f'{k} {v}' for k, v in sorted(policy.counters.items()))
-    print(f'{len(out)} samples ({policy.config.method}, band {policy.config.band}, delay '
-          f'{policy.delay_samples} samples); {counts}', file=sys.stderr)
+    scale = inp.location.scale
+    if inp.location.track is not None:
+        print(f'odometry scale {scale.value:.5f} +- {scale.std:.5f} ({scale.note})',
+              file=sys.stderr)
+    counts = ', '.join(f'{k} {v}' for k, v in sorted(driver.counters.items()))
+    print(f'{count} samples ({driver.nominal.config.method}, band {driver.nominal.config.band}, '
+          f'delay {driver.delay_samples} samples); {counts}', file=sys.stderr)
     return 0
