@@ -78,6 +78,20 @@ def _km(review: Review, chainage_m: float) -> str:
     return f'km {float(review.location.reference.km(chainage_m)):.3f} ({chainage_m:.1f} m)'
 
 
+def _location(review: Review) -> str:
+    """Line, track, km range and direction, GNSS and the odometry scale (escaped HTML)."""
+    loc, run = review.location, review.run
+    ref = loc.reference
+    names = ', '.join(f'{k} {escape(v)}' for k, v in (('line', ref.line), ('track', ref.track))
+                      if v)
+    span = (f'km {float(ref.km(run.first[1])):.3f} to {float(ref.km(run.last[1])):.3f} '
+            f'({ref.direction})')
+    scale = loc.scale
+    gnss = (f'GNSS: odometry scale {scale.value:.5f} &plusmn; {scale.std:.5f}'
+            if loc.track is not None else f'no GNSS position ({escape(scale.note)})')
+    return f'{names + "; " if names else ""}{span}; {gnss}'
+
+
 def _summary(review: Review) -> str:
     run, health = review.run, review.health
     length = run.length_m
@@ -110,6 +124,7 @@ def _summary(review: Review) -> str:
                            f'{_km(review, run.widest.chainage_m)}'))
     cards.append(_card('input', f'{health.imu.count} IMU samples at {health.imu.rate_hz:.0f} Hz, '
                                 f'{health.rejected_total} rejected, {health.imu.gaps} gaps'))
+    cards.append(_card('location', _location(review)))
     if review.comparison is not None:
         s = review.comparison.score
         cards.append(_card('vs truth', f'RMSE {s.rmse * MM:.3f} mm, r = {s.correlation:.3f}, '
@@ -131,7 +146,9 @@ def _limits_section(review: Review, names: dict[str, str]) -> str:
                                                        CONFIDENCES.index(e.confidence),
                                                        -abs(e.peak_u_m)))
     listed = sorted(severe[:MAX_ROWS], key=lambda e: e.start_m)  # the worst, in chainage order
-    exc_rows = [[e.level, e.confidence, f'{e.start_m:.1f}', f'{e.end_m:.1f}', f'{e.peak_m:.1f}',
+    km = review.location.reference.km
+    exc_rows = [[e.level, e.confidence, f'{float(km(e.peak_m)):.4f}', f'{e.start_m:.1f}',
+                 f'{e.end_m:.1f}', f'{e.peak_m:.1f}',
                  f'{e.peak_u_m * MM:+.2f}', f'{e.lower_m * MM:+.2f} / {e.upper_m * MM:+.2f}',
                  f'{e.limit_m * MM:.0f}', f'{e.speed_kmh:.0f}',
                  '-' if np.isnan(e.probability) else f'{e.probability:.2f}'] for e in listed]
@@ -154,7 +171,7 @@ the limits of the speed class at each sample (speed from odometry). AL and IL ar
 standard; this report uses their <b>{lim.end}</b> end ({why}). Values: {escape(SOURCE)}.
 {band_note}</p>
 {_table(['level', *CONFIDENCES], count_rows)}
-{_table(['level', 'confidence', 'from [m]', 'to [m]', 'peak at [m]', 'peak [mm]',
+{_table(['level', 'confidence', 'km', 'from [m]', 'to [m]', 'peak at [m]', 'peak [mm]',
          'band at peak [mm]', 'limit [mm]', 'speed [km/h]', 'P'], exc_rows, left=2)}{more}
 <details><summary>Limits used ({lim.band.upper()}, {lim.end} end of the ranges) [M]</summary>
 {table}</details>'''
