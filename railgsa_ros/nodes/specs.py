@@ -60,8 +60,9 @@ NODE_SPECS = (
     ParamSpec('backward_reset_s', 1.0, 'stamps going backwards by more than this (a looped bag, '
               'a sim-time reset) restart the filters instead of being rejected, s',
               (0.001, 1e6)),
-    ParamSpec('idle_flush_s', 1.0, 'no IMU message for this long (steady clock) ends the stream: '
-              'the samples pending in the band filter (about 7 s) are flushed and published, s',
+    ParamSpec('idle_flush_s', 2.0, 'no IMU message for this long (steady clock) ends the stream: '
+              'the samples pending in the band filter (about 7 s) are flushed and published; '
+              'keep it above max_bridge_s (1.2 s) so that a bridged dropout is no stream end, s',
               (0.05, 3600.0)),
     ParamSpec('flush_rate_hz', 2000.0, 'flushed outputs are published at this rate on top of '
               'the live ones, in slices of at most output_qos_depth / 8 per 10 ms, messages/s',
