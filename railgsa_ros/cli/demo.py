@@ -79,7 +79,9 @@ def run_live(bag: Path, out: Path, duration_s: float) -> Path:
                                 '--wait-for-subscribers', '30')
         if replay.wait(duration_s + 90.0) != 0:
             raise RailGsaError(f'replay failed: see {out / "logs"}')
-        time.sleep(2.5)  # the nodes' last outputs and diagnostics reach the recorder
+        # the nodes' last outputs and diagnostics reach the recorder: idle_flush_s (2 s), then
+        # the last band delay (~7200 outputs) paced at flush_rate_hz (2000/s), then a margin
+        time.sleep(7.0)
         if recorder.stop().rc != 0:
             raise RailGsaError(f'recording failed: see {out / "logs"}')
     return record
