@@ -130,7 +130,9 @@ class Listener:
             part = getattr(msg, member)
             with self.lock:
                 self.count[topic] += 1
-                if not all(math.isfinite(getattr(part, n)) for n in names):
+                values = [getattr(part, n) for n in names]
+                invalid = topic == 'track/irregularity_band' and all(map(math.isnan, values))
+                if not (invalid or all(map(math.isfinite, values))):  # all NaN: INVALID sample
                     self.bad.append(f'{topic}: {part}')
         return record
 
@@ -215,9 +217,14 @@ def test_uncertainty_node_handlers(rig: Callable, wait_for: Callable) -> None:
 
     node, listener = rig(UncertaintyNode, UNCERTAINTY,
                          ('track/irregularity_band', 'track/sensitivity'))
-    run_fuzz(node, lambda band: all(
-        bool(np.all(np.isfinite(getattr(band, f)))) for f in
-        ('lower_m', 'mean_m', 'upper_m', 'chainage_m')))
+    def sound(band: Any) -> bool:  # finite, except the NaN band of INVALID samples
+        ok = band.quality != 2
+        return bool(np.all(np.isfinite(band.chainage_m))) and all(
+            bool(np.all(np.isfinite(getattr(band, f)[ok])) and np.all(np.isnan(getattr(band,
+                                                                                    f)[~ok])))
+            for f in ('lower_m', 'mean_m', 'upper_m'))
+
+    run_fuzz(node, sound)
     assert wait_for(lambda: listener.count['track/sensitivity'] > 0, 10.0)
     assert wait_for(lambda: listener.count['track/irregularity_band'] > 0, 10.0)
     assert listener.bad == []

@@ -117,26 +117,26 @@ class WindowAnalyzer:
     def push(self, stamps: np.ndarray, chain: np.ndarray, mean: np.ndarray,
              u: np.ndarray, valid: np.ndarray | None = None) -> list[Sensitivity]:
         """Emitted samples: stamps (K,) ns, chainage (K,) m, PCE mean (K,), bank u (P, K);
-        ``valid`` (K,): the samples the windows take (the others, INVALID ones, only place the
-        origin: the first emitted stamp)."""
+        ``valid`` (K,): the samples the windows take. Every sample places the windows (origin:
+        the first emitted stamp) and closes the open one when it lies in a later window; the
+        others (INVALID ones) add nothing, and a window without a valid sample has no record."""
         if not self.config.qois or stamps.size == 0:
             return []
         idx = self._index(stamps, chain)
-        if valid is not None and not valid.all():
-            stamps, chain, mean, u, idx = (stamps[valid], chain[valid], mean[valid],
-                                           u[:, valid], idx[valid])
-            if stamps.size == 0:
-                return []
+        valid = np.ones(idx.size, bool) if valid is None else np.asarray(valid, bool)
         cuts = np.flatnonzero(np.diff(idx)) + 1
         out = []
         for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [idx.size]]),
                           strict=True):
             if self._open is not None and self._open.index != idx[lo]:
                 out += self.close()
+            keep = np.flatnonzero(valid[lo:hi]) + lo
+            if keep.size == 0:
+                continue
             if self._open is None:
-                self._open = _Window(int(idx[lo]), int(stamps[lo]), float(chain[lo]),
+                self._open = _Window(int(idx[lo]), int(stamps[keep[0]]), float(chain[keep[0]]),
                                      self.design.points)
-            self._open.add(stamps[lo:hi], chain[lo:hi], mean[lo:hi], u[:, lo:hi])
+            self._open.add(stamps[keep], chain[keep], mean[keep], u[:, keep])
         return out
 
     def close(self) -> list[Sensitivity]:
