@@ -47,11 +47,14 @@ class SensorTerms:
     def std(self, stamps_ns: np.ndarray, mean_m: np.ndarray, speed_mps: np.ndarray | None,
             quality: np.ndarray | None) -> np.ndarray:
         """Std (K,) m of emitted samples: stamps (K,) ns, band mean (K,) m (NaN where
-        INVALID), speed (K,) m/s and quality (K,) (None: no speed-dependent term, all VALID)."""
+        INVALID), speed (K,) m/s (None or NaN: no noise term) and quality (K,) (None: all
+        VALID)."""
         mean = np.nan_to_num(np.asarray(mean_m, dtype=float))
         noise = np.zeros(mean.shape)
         if self._noise is not None and speed_mps is not None and mean.size:
-            noise = self._noise(np.asarray(speed_mps, dtype=float))
+            speed = np.asarray(speed_mps, dtype=float)
+            known = np.isfinite(speed)  # unknown speed: an INVALID sample, no noise term
+            noise = np.where(known, self._noise(np.where(known, speed, 1.0)), 0.0)
         var = noise ** 2 + (self._scale_std * mean) ** 2
         if self._delay_std_s > 0 and mean.size:
             var += (self._delay_std_s * self._rate(np.asarray(stamps_ns), mean)) ** 2
@@ -79,11 +82,12 @@ class SensorTerms:
 def sensor_terms(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
                  noise_variance: float | None) -> SensorTerms:
     """The terms of a stream: sigma_u(v) of the nominal ``vehicle`` for the accelerometer
-    variance (m/s^2)^2 (None: ``noise_std_mps2``^2, the policy's fallback); no noise term
-    without a band (paper mode)."""
+    variance (m/s^2)^2 (None or not a positive finite number: ``noise_std_mps2``^2, the
+    policy's fallback); no noise term without a band (paper mode)."""
     inv = config.inversion
     if inv.band == 'none':
         return SensorTerms(config, None)
-    variance = noise_variance if noise_variance is not None else inv.noise_std_mps2 ** 2
+    usable = noise_variance is not None and 0.0 < noise_variance < np.inf
+    variance = noise_variance if usable else inv.noise_std_mps2 ** 2
     floor = NoiseFloor(as_theta(vehicle), inv.band, inv.band_order, inv.rate_hz, variance)
     return SensorTerms(config, floor.sigma_m)
