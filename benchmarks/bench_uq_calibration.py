@@ -37,7 +37,7 @@ REST_M = 950.0  # the rest of the run starts here
 
 def rest_band(run, config, vehicle, law) -> tuple[float, float]:
     """Mean 95 % half-width (m) and coverage of the truth on the rest of the run."""
-    band = offline_bands(run.stamps_ns, run.accel[:, 2], run.speed_mps, config=config,
+    band = offline_bands(run.stamps_ns, run.accel, (run.stamps_ns, run.speed_mps), config=config,
                          vehicle=vehicle, dists=law,
                          noise_variance=accel_covariance(imu_spec('bmi088')))
     x = np.arange(run.chainage_m[0], run.chainage_m[-1], 0.25)

@@ -22,10 +22,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.uncertainty.config import UncertaintyConfig
-from railgsa_ros.vehicle import VehicleParams, as_theta
 
 NoiseStd = Callable[[np.ndarray], np.ndarray]  # speeds (K,) m/s -> sigma_u (K,) m
 
@@ -78,16 +76,3 @@ class SensorTerms:
         """Forget the carried sample (a restart of the stream)."""
         self._last = None
 
-
-def sensor_terms(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
-                 noise_variance: float | None) -> SensorTerms:
-    """The terms of a stream: sigma_u(v) of the nominal ``vehicle`` for the accelerometer
-    variance (m/s^2)^2 (None or not a positive finite number: ``noise_std_mps2``^2, the
-    policy's fallback); no noise term without a band (paper mode)."""
-    inv = config.inversion
-    if inv.band == 'none':
-        return SensorTerms(config, None)
-    usable = noise_variance is not None and 0.0 < noise_variance < np.inf
-    variance = noise_variance if usable else inv.noise_std_mps2 ** 2
-    floor = NoiseFloor(as_theta(vehicle), inv.band, inv.band_order, inv.rate_hz, variance)
-    return SensorTerms(config, floor.sigma_m)
