@@ -64,12 +64,12 @@ LOCATION_KEYS = ('line', 'track', 'direction', 'km_origin')  # params-file keys,
 
 
 def add_location_options(p: argparse.ArgumentParser) -> None:
-    """--line, --track, --direction, --km-origin, --gnss-topic (railgsa review and invert)."""
-    from railgsa_ros.location import DIRECTIONS
-
+    """--line, --track, --direction, --km-origin, --gnss-topic (railgsa review and invert).
+    The direction is checked by ``location.Reference`` (one check for options and params files;
+    importing it here would load numpy and the bag readers for ``railgsa --help``)."""
     p.add_argument('--line', help='line id (default: the params file line, else empty)')
     p.add_argument('--track', help='track id (default: the params file track, else empty)')
-    p.add_argument('--direction', choices=DIRECTIONS,
+    p.add_argument('--direction', metavar='increasing|decreasing',
                    help='km-posts increase or decrease along the run (default increasing)')
     p.add_argument('--km-origin', type=float, metavar='KM',
                    help='km-post of the run start, chainage 0 (default 0)')
