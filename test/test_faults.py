@@ -73,14 +73,14 @@ def test_bad_stretch_counted_by_reason_without_a_spike(kind: str, expected: dict
     _, _, u = feed(node, stamps, acc)
     assert counts(node) == {**dict.fromkeys(KEYS, 0), **expected}
     clean = offline(run.stamps_ns + T0_NS, run.accel[:, 2]).u_m
-    assert u.size > 0 and np.all(np.isfinite(u))
-    assert np.abs(u).max() <= 1.2 * np.abs(clean).max()  # no spike at the fault
+    finite = np.abs(u[np.isfinite(u)])  # NaN where INVALID: warm-up, the tails of a reset
+    assert u.size > 0 and np.all(finite <= 1.2 * np.nanmax(np.abs(clean)))  # no spike
 
 
 def test_time_going_backwards_resets_and_continues(run: Any, node: Any) -> None:
     stamps, acc = run.stamps_ns[:3000] + T0_NS, run.accel[:3000, 2]
     first = feed(node, stamps, acc)
-    before = node._pipeline.chainage_m
+    before = node.policy.chainage_m
     second = feed(node, stamps, acc)  # a looped bag: the same stamps again
     assert counts(node) == {**dict.fromkeys(KEYS, 0), 'accepted': 6000, 'time_reset': 1}
     ref = offline(stamps, acc)  # a fresh pipeline on the second pass

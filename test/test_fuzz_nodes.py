@@ -128,11 +128,14 @@ class Listener:
 
         def record(msg: Any) -> None:
             part = getattr(msg, member)
+            values = [getattr(part, n) for n in names]
+            if member == 'point':  # x chainage always finite; z NaN exactly when y = INVALID
+                ok = math.isfinite(part.x) and math.isfinite(part.z) == (part.y != 2)
+            else:  # the band: all finite, or all NaN (an INVALID sample)
+                ok = all(map(math.isfinite, values)) or all(map(math.isnan, values))
             with self.lock:
                 self.count[topic] += 1
-                values = [getattr(part, n) for n in names]
-                invalid = topic == 'track/irregularity_band' and all(map(math.isnan, values))
-                if not (invalid or all(map(math.isfinite, values))):  # all NaN: INVALID sample
+                if not ok:
                     self.bad.append(f'{topic}: {part}')
         return record
 
@@ -194,10 +197,13 @@ def run_fuzz(node: Any, finite: Callable[[Any], bool]) -> None:
     handle()
     totals = node.counters()
     assert totals['received'] == clock.sent
+    policy = node.policy if hasattr(node, 'policy') else node.stream.policy
     assert totals['received'] == totals.get('accepted', 0) + sum(
-        totals.get(r, 0) for r in REJECTED), totals  # each message counted exactly once
+        totals.get(r, 0) for r in REJECTED) + policy.held, totals  # each message once (or
+    # still held by the policy for its speed or noise decision)
     assert totals.get('internal_error', 0) == 0, totals
-    assert totals.get('published', 0) > 0 and totals.get('malformed', 0) > 0, totals
+    assert totals.get('malformed', 0) > 0, totals  # outputs published once any was emitted
+    assert totals.get('published', 0) > 0 or totals.get('emitted', 0) == 0, totals
     assert totals.get('odom_malformed', 0) > 0, totals  # NaN/inf speeds and bad stamps
 
 
@@ -206,9 +212,11 @@ def test_irregularity_node_handlers(rig: Callable, wait_for: Callable) -> None:
 
     node, listener = rig(IrregularityNode, {'wrong_frame_policy': 'accept'},
                          ('track/irregularity',))
-    run_fuzz(node, lambda out: bool(
-        np.all(np.isfinite(out.u_m)) and np.all(np.isfinite(out.chainage_m))))
-    assert wait_for(lambda: listener.count['track/irregularity'] > 0, 10.0)
+    run_fuzz(node, lambda out: bool(  # u NaN exactly where INVALID
+        np.all(np.isfinite(out.u_m) == (out.quality != 2))
+        and np.all(np.isfinite(out.chainage_m))))
+    assert wait_for(lambda: listener.count['track/irregularity']
+                    >= node.counters().get('published', 0), 10.0)
     assert listener.bad == []
 
 
@@ -217,14 +225,10 @@ def test_uncertainty_node_handlers(rig: Callable, wait_for: Callable) -> None:
 
     node, listener = rig(UncertaintyNode, UNCERTAINTY,
                          ('track/irregularity_band', 'track/sensitivity'))
-    def sound(band: Any) -> bool:  # finite, except the NaN band of INVALID samples
-        ok = band.quality != 2
-        return bool(np.all(np.isfinite(band.chainage_m))) and all(
-            bool(np.all(np.isfinite(getattr(band, f)[ok])) and np.all(np.isnan(getattr(band,
-                                                                                    f)[~ok])))
-            for f in ('lower_m', 'mean_m', 'upper_m'))
-
-    run_fuzz(node, sound)
+    run_fuzz(node, lambda band: all(  # the band NaN exactly where INVALID
+        bool(np.all(np.isfinite(getattr(band, f)) == (band.quality != 2))) for f in
+        ('lower_m', 'mean_m', 'upper_m')) and bool(np.all(np.isfinite(band.chainage_m))))
+    assert wait_for(lambda: listener.count['track/irregularity_band']
+                    >= node.counters().get('published', 0), 10.0)
     assert wait_for(lambda: listener.count['track/sensitivity'] > 0, 10.0)
-    assert wait_for(lambda: listener.count['track/irregularity_band'] > 0, 10.0)
     assert listener.bad == []

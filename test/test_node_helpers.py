@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from railgsa_ros.nodes.imu_conversion import accel_variances, imu_batch, odom_speed
+from railgsa_ros.nodes.imu_conversion import imu_batch, odom_speed
 
 NAN = float('nan')
 
@@ -47,20 +47,14 @@ def test_imu_batch_reads_rclpy_messages() -> None:
     m.linear_acceleration_covariance[8] = 2e-4
     batch = imu_batch([m])
     assert batch.stamps_ns.tolist() == [7_000_000_005] and batch.accel[0, 2] == 9.8
-    np.testing.assert_array_equal(batch.accel_var[0], [NAN, NAN, 2e-4])
+    np.testing.assert_array_equal(batch.covariance[0], [0] * 8 + [2e-4])  # as sent
 
 
-@pytest.mark.parametrize(('cov', 'expected'), [
-    ([1e-4, 0, 0, 0, 2e-4, 0, 0, 0, 3e-4], [1e-4, 2e-4, 3e-4]),   # reported
-    ([-1.0, 0, 0, 0, 2e-4, 0, 0, 0, 3e-4], [NAN, NAN, NAN]),     # -1 in element 0: absent
-    ([NAN, 0, 0, 0, 2e-4, 0, 0, 0, 3e-4], [NAN, NAN, NAN]),      # NaN (REP 145 text): absent
-    ([0.0] * 9, [NAN, NAN, NAN]),                                # all zeros: unknown
-    ([1e-4, 0, 0, 0, 0.0, 0, 0, 0, np.inf], [1e-4, NAN, NAN]),   # unusable entries
-])
-def test_covariance_follows_rep145_consumer_rules(cov: list[float], expected: list[float]
-                                                  ) -> None:
-    np.testing.assert_array_equal(imu_batch([fake_imu(cov=cov)]).accel_var[0], expected)
-    np.testing.assert_array_equal(accel_variances(cov[0], [cov[0], cov[4], cov[8]]), expected)
+def test_covariance_passed_on_as_sent_and_short_ones_malformed() -> None:
+    """REP 145 rules are the input policy's: the converter keeps the 9 values as they came."""
+    cov = [-1.0, 0, 0, 0, 2e-4, 0, 0, 0, NAN]
+    np.testing.assert_array_equal(imu_batch([fake_imu(cov=cov)]).covariance[0], cov)
+    assert imu_batch([fake_imu(cov=[1e-4] * 3)]).malformed.tolist() == [True]
 
 
 def test_odom_speed() -> None:
@@ -71,8 +65,10 @@ def test_odom_speed() -> None:
                                    linear=SimpleNamespace(x=vx))))
     assert odom_speed(odom(2, 5, 12.5)) == (2_000_000_005, 12.5)
     assert odom_speed(odom(2, 5, -3.0)) == (2_000_000_005, -3.0)  # reversing is a speed too
-    for bad in (odom(0, 0, 1.0), odom(2, 0, NAN), odom(2, 2_000_000_000, 1.0), object()):
+    for bad in (odom(0, 0, 1.0), odom(2, 2_000_000_000, 1.0), object()):
         assert odom_speed(bad) is None
+    stamp, speed = odom_speed(odom(2, 0, NAN))  # the policy counts NaN odometry, not the node
+    assert stamp == 2_000_000_000 and np.isnan(speed)
 
 
 # --------------------------------------------------------------------------- ROS helpers

@@ -271,39 +271,62 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
 def test_internal_error_is_counted_and_the_stream_rebuilt(run: Any, rig: Callable) -> None:
     node, _ = rig()
     msgs = imu_messages(run.stamps_ns[:100] + T0_NS, run.accel[:100, 2])
-    broken = node.stream
+    policy = node.stream.policy
+    calls = []
 
-    def fail(*_args: Any) -> None:
-        raise RuntimeError('injected')
-    broken.push = fail
+    def fail_once(*args: Any) -> Any:
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError('injected')
+        return type(policy).imu(policy, *args)
+    policy.imu = fail_once
     assert node.process(msgs) is None
-    assert node.counters()['internal_error'] == 1 and node.stream is not broken
+    assert node.counters()['internal_error'] == 1 and node.counters()['rebuild'] == 1
     node.process(imu_messages(run.stamps_ns[100:3000] + T0_NS, run.accel[100:3000, 2]))
     assert node.counters()['published'] > 0
 
 
-def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callable) -> None:
+def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callable,
+                                                           wait_for: Callable) -> None:
+    """The stream's policy takes the node's odometry and the IMU-reported variance: equal to a
+    stream with the same odometry and that variance fixed."""
     from nav_msgs.msg import Odometry
 
+    from railgsa_ros.inverse.policy import PolicyOptions
     from railgsa_ros.uncertainty import UncertaintyStream
 
-    node, _ = rig(use_odom=True, method='kalman', band='none', qoi='')
+    node, listener = rig(use_odom=True, method='kalman', band='none', qoi='',
+                         odom_timeout_s=10.0)
     stamps, acc = run.stamps_ns[:2000] + T0_NS, run.accel[:2000, 2]
-    odom = Odometry()
-    odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(int(stamps[-1]), NS)
-    odom.twist.twist.linear.x = 25.0
-    node._intake._on_odom(odom)
+
+    def odom(stamp: int) -> Odometry:
+        msg = Odometry()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp), NS)
+        msg.twist.twist.linear.x = 25.0
+        return msg
     msgs = imu_messages(stamps, acc)
     for m in msgs:
         m.linear_acceleration_covariance[0] = 0.0
         m.linear_acceleration_covariance[8] = 4e-6
-    band = node.process(msgs)
+    node._intake._on_odom(odom(stamps[0]))
+    node.process(msgs)
+    node._intake._on_odom(odom(stamps[-1] + 1))  # newer than every sample: all decided
     config = node_config().with_(qoi='', inversion=node_config().inversion.with_(
         method='kalman', band='none'))
-    ref = UncertaintyStream(config, noise_variance=4e-6).push(stamps, acc, 25.0).band
-    np.testing.assert_array_equal(band.stamps_ns, ref.stamps_ns)
-    np.testing.assert_allclose(band.mean_m, ref.mean_m, rtol=1e-12, atol=0)
-    assert node._intake.speed_mps == 25.0
+    ref = UncertaintyStream(config, noise_variance=4e-6,
+                            options=PolicyOptions(use_odom=True, odom_timeout_s=10.0))
+    accel = np.zeros((len(stamps), 3))
+    accel[:, 2] = acc
+    want = [ref.odometry([stamps[0]], [25.0]).band, ref.imu(stamps, accel).band,
+            ref.odometry([stamps[-1] + 1], [25.0]).band]
+    want = want[0].concat(want)
+    assert len(want) == len(stamps)  # band none: every sample out
+    assert wait_for(lambda: len(listener.band) >= len(want), 30.0)
+    with listener.lock:
+        got_t = np.array([b[0] for b in listener.band], np.int64)
+        got_mean = np.array([b[2] for b in listener.band])
+    np.testing.assert_array_equal(got_t, want.stamps_ns)
+    np.testing.assert_allclose(got_mean, want.mean_m, rtol=1e-12, atol=0)
 
 
 def test_invalid_start_parameters_raise_config_error(ros_context: Any, tmp_path: Any) -> None:

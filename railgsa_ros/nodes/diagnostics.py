@@ -12,6 +12,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
@@ -22,6 +23,9 @@ from railgsa_ros.nodes.qos import DIAGNOSTICS_QOS
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
                           DiagnosticStatus.STALE)
+LEVELS = (OK, WARN, ERROR)  #: by the core's finding levels 0, 1, 2
+LEVEL_NAMES = ('OK', 'WARN', 'ERROR')
+QUALITIES = ('valid', 'degraded', 'invalid')  #: output counters by quality code 0, 1, 2
 
 
 @dataclass
@@ -124,3 +128,19 @@ class DiagnosticsPublisher:
         """Release the timer and the publisher."""
         self._node.destroy_timer(self._timer)
         self._node.destroy_publisher(self._pub)
+
+
+def quality_values(totals: Mapping[str, int], delta: Mapping[str, int]) -> dict[str, int]:
+    """Outputs by quality (the core's counters valid, degraded, invalid): totals and in the
+    period."""
+    values = {q: totals.get(q, 0) for q in QUALITIES}
+    values.update({f'{q}_last_period': delta.get(q, 0) for q in QUALITIES})
+    return values
+
+
+def checks_report(policy: Any) -> Report:
+    """The 'input checks' task: the input policy's worst finding as level and message, every
+    finding's one-line message as a value (key = the check)."""
+    status = policy.status
+    values = {f.key: f'{LEVEL_NAMES[f.level]}: {f.message}' for f in policy.findings}
+    return Report(LEVELS[status.level], status.message, values)

@@ -1,32 +1,27 @@
-"""IMU and odometry intake shared by the railgsa nodes.
+"""IMU and odometry intake shared by the railgsa nodes: subscriptions and conversion only.
 
 Subscribes ``imu/data`` (depth ``imu_qos_depth``, ``imu_reliability``) and, with ``use_odom``,
 ``odom`` (``odom_reliability``).
 The IMU callback takes the message it was called for plus every message already waiting in the
 reader history and hands them over as one list, so a busy node works on growing batches instead
-of falling behind. ``prepare`` turns such a list into arrays for a core ``push``: malformed
-messages dropped and counted, the frame policy applied (warned once), the vertical axis picked
-and the speed chosen (fresh odometry, else ``speed_mps``). ``report`` is the 'imu input'
-diagnostic task.
+of falling behind. ``convert`` turns such a list into arrays (malformed messages dropped and
+counted); every input decision (axis, frame policy, speed, noise, quality) is the core's
+:class:`~railgsa_ros.inverse.policy.InputPolicy`. ``report`` is the 'imu input' diagnostic task.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from nav_msgs.msg import Odometry
-import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
-from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.pipeline import vertical
-from railgsa_ros.inverse.sanitize import REASONS, frame_mask
+from railgsa_ros.inverse.sanitize import REASONS
 from railgsa_ros.nodes.diagnostics import ERROR, OK, WARN, Report
-from railgsa_ros.nodes.imu_conversion import NS_PER_S, imu_batch, odom_speed
+from railgsa_ros.nodes.imu_conversion import ImuBatch, imu_batch, odom_speed
 from railgsa_ros.nodes.qos import sensor_qos
 
 MAX_BATCH = 2000  #: messages handed over per callback at most
@@ -35,38 +30,24 @@ ODOM_DEPTH = 50
 REJECT_REASONS = (*REASONS, 'malformed')
 
 
-@dataclass(frozen=True)
-class Samples:
-    """Well-formed samples of one batch: stamps_ns (N,) int64, accel_up (N,) upward specific
-    force in m/s^2 (+g at rest), speed_mps (m/s), frame_ids (N,) for the core to check (None
-    when the policy accepts any frame) and the first IMU-reported variance of the vertical axis
-    in (m/s^2)^2 (None if absent or unknown)."""
-
-    stamps_ns: np.ndarray
-    accel_up: np.ndarray
-    speed_mps: float
-    frame_ids: np.ndarray | None
-    reported_variance: float | None
-
-
 class ImuIntake:
     """Subscriptions and conversion for the IMU and odometry; ``counts`` holds received,
-    malformed, wrong_frame_accepted and odom_malformed.
+    malformed and odom_malformed.
 
     With ``on_messages`` the IMU subscription calls it with every waiting message; without it
     the subscription belongs to a helper node ``<node>_imu_reader`` that no executor spins and
     the owner polls ``take()`` (the 1 kHz stream then never wakes the executor).
+    ``on_odometry(stamp_ns, speed_mps)`` gets every odometry message with a valid stamp.
     """
 
     def __init__(self, node: Node, values: Mapping[str, Any],
-                 on_messages: Callable[[list[Imu]], None] | None = None) -> None:
+                 on_messages: Callable[[list[Imu]], None] | None = None,
+                 on_odometry: Callable[[int, float], None] | None = None) -> None:
         self._node = node
         self._on_messages = on_messages
+        self._on_odometry = on_odometry
         self.counts: Counter[str] = Counter()
         self.depth = int(values['imu_qos_depth'])  #: reader history, messages
-        self.odom: tuple[int, float] | None = None  #: newest (stamp ns, speed m/s)
-        self.odom_missing = False  #: use_odom but no fresh odometry at the last batch
-        self.speed_mps = float(values['speed_mps'])  #: speed used for the last batch
         self._reader = None if on_messages is not None else Node(
             f'{node.get_name()}_imu_reader', context=node.context,
             namespace=node.get_namespace())
@@ -111,41 +92,23 @@ class ImuIntake:
         sample = odom_speed(msg)
         if sample is None:
             self.counts['odom_malformed'] += 1
-        elif self.odom is None or sample[0] >= self.odom[0]:
-            self.odom = sample
+        elif self._on_odometry is not None:
+            self._on_odometry(*sample)
 
-    def prepare(self, msgs: Sequence[Any], config: InversionConfig,
-                values: Mapping[str, Any]) -> Samples | None:
-        """Arrays for the core from a list of Imu messages; None if none is well-formed."""
+    def convert(self, msgs: Sequence[Any]) -> ImuBatch | None:
+        """The well-formed messages of a list as arrays (counted: received, malformed); None if
+        there is none."""
         self.counts['received'] += len(msgs)
         batch = imu_batch(msgs)
-        self.counts['malformed'] += int(batch.malformed.sum())
-        good = ~batch.malformed
-        if not good.any():
+        bad = int(batch.malformed.sum())
+        self.counts['malformed'] += bad
+        if bad == len(batch):
             return None
-        stamps, frames = batch.stamps_ns[good], batch.frame_ids[good]
-        reject = values['wrong_frame_policy'] == 'reject'
-        matches = frame_mask(frames, config.frame_id)
-        if matches is not None and not matches.all():
-            self._node.get_logger().warning(
-                f'IMU frame_id {frames[~matches][0]!r} is not {config.frame_id!r}: samples are '
-                f'{"rejected" if reject else "accepted"}', once=True)
-            if not reject:
-                self.counts['wrong_frame_accepted'] += int((~matches).sum())
-        variance = batch.accel_var[good, 'xyz'.index(config.accel_axis[-1])]
-        variance = variance[np.isfinite(variance)]
-        return Samples(stamps, vertical(batch.accel[good], config.accel_axis),
-                       self._speed_for(int(stamps[-1]), values),
-                       frames if reject else None,
-                       float(variance[0]) if variance.size else None)
-
-    def _speed_for(self, stamp_ns: int, values: Mapping[str, Any]) -> float:
-        """Newest odometry speed if fresh (m/s), else the speed_mps parameter."""
-        odom = self.odom
-        fresh = odom is not None and stamp_ns - odom[0] <= values['odom_timeout_s'] * NS_PER_S
-        self.odom_missing = bool(values['use_odom']) and not fresh
-        self.speed_mps = odom[1] if fresh else float(values['speed_mps'])
-        return self.speed_mps
+        if not bad:
+            return batch
+        good = ~batch.malformed
+        return ImuBatch(batch.stamps_ns[good], batch.accel[good], batch.frame_ids[good],
+                        batch.covariance[good], batch.malformed[good])
 
     def report(self, totals: Mapping[str, int], delta: Mapping[str, int], elapsed_s: float,
                expected_frame_id: str) -> Report:
@@ -154,7 +117,9 @@ class ImuIntake:
         values: dict[str, object] = {'topic': self.sub.topic_name,
                                      'rate_hz': delta.get('received', 0) / elapsed_s}
         for key in ('received', 'accepted', 'gap', 'reset', 'time_reset', 'bridged',
-                    'wrong_frame_accepted', 'odom_malformed'):
+                    'wrong_frame_accepted', 'odom_received', 'odom_malformed', 'odom_nan',
+                    'odom_implausible', 'odom_out_of_order', 'speed_unknown', 'reverse',
+                    'gravity_invalid', 'rate_invalid'):
             values[key] = totals.get(key, 0)
         values['rejected'] = sum(totals.get(r, 0) for r in REJECT_REASONS)
         values.update({f'rejected_{r}': totals.get(r, 0) for r in REJECT_REASONS})

@@ -3,23 +3,25 @@
 Subscribes ``imu/data`` (sensor_msgs/Imu) and optionally ``odom`` (nav_msgs/Odometry, speed =
 twist.twist.linear.x); publishes ``track/irregularity`` (geometry_msgs/PointStamped, stamp = the
 IMU sample's stamp, frame ``track``, x = chainage m, z = irregularity m, +z up) and
-``/diagnostics``. A thin adapter over :class:`railgsa_ros.inverse.pipeline.InversionPipeline`;
-see docs/nodes.md for topics, parameters, QoS and diagnostics.
+``/diagnostics``. A thin adapter over :class:`railgsa_ros.inverse.policy.InputPolicy` (every
+input decision: axis, frame policy, speed with its timeout, noise, quality; the same object as
+``railgsa invert``): ``point.y`` = the sample's quality code (0 VALID, 1 DEGRADED, 2 INVALID),
+``point.z`` = NaN when INVALID. See docs/nodes.md for topics, parameters, QoS and diagnostics.
 
 Nothing is held back: ``idle_flush_s`` without input, deactivate and shutdown flush the samples
 pending in the band filter; every output goes through an
 :class:`~railgsa_ros.nodes.pacing.OutputPacer` (no burst beyond the writer history).
 
 Processing: the IMU callback gets the message it was called for plus every message already
-waiting in the reader history (:class:`~railgsa_ros.nodes.imu_input.ImuIntake`) and pushes them
-through the pipeline at once. At light load each sample is processed as it arrives (lowest
+waiting in the reader history (:class:`~railgsa_ros.nodes.imu_input.ImuIntake`) and gives them
+to the policy at once. At light load each sample is processed as it arrives (lowest
 latency); under load the batches grow and the cost per sample falls. benchmarks/
 bench_node_latency.py measured this against per-message processing (falls behind) and a 100 Hz
 timer (+5-10 ms latency).
 
 A managed lifecycle node (:mod:`railgsa_ros.nodes.lifecycle`): configure declares and checks the
-parameters and builds the pipeline, activate subscribes, deactivate unsubscribes, cleanup drops
-the pipeline; ``autostart`` (default true) goes to active at start-up.
+parameters and builds the policy, activate subscribes, deactivate flushes and unsubscribes,
+cleanup drops the policy; ``autostart`` (default true) goes to active at start-up.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal
 
 from collections import Counter
 from collections.abc import Mapping, Sequence
+from dataclasses import fields
 import sys
 import time
 from typing import Any
@@ -42,16 +45,19 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.pipeline import Output
+from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.nodes.diagnostics import (
     ERROR,
     OK,
     STALE,
-    WARN,
     Deltas,
     DiagnosticsPublisher,
     LatencyWindow,
     Report,
+    checks_report,
+    quality_values,
 )
 from railgsa_ros.nodes.imu_input import ImuIntake
 from railgsa_ros.nodes.lifecycle import ManagedNode, run
@@ -61,7 +67,6 @@ from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
     NODE_SPECS,
-    SANITIZER_PARAMS,
     VEHICLE_SPECS,
     inversion_config,
     vehicle_values,
@@ -71,21 +76,27 @@ from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 NODE_NAME = 'irregularity_node'
 OUTPUT_FRAME = 'track'
 SPECS = INVERSION_SPECS + VEHICLE_SPECS + NODE_SPECS
-#: parameters whose change rebuilds the pipeline (flush, then a clean start); speed_mps is not
-#: one: the node passes the speed with every batch, so a new fallback speed applies at once
+#: parameters whose change rebuilds the policy (old filters flushed, chainage continued)
 MODEL_PARAMS = frozenset((*(s.name for s in INVERSION_SPECS + VEHICLE_SPECS),
-                          *SANITIZER_PARAMS)) - {'speed_mps'}
+                          *(f.name for f in fields(PolicyOptions))))
+Model = tuple[InversionConfig, VehicleParams, PolicyOptions]
 
 
-def build_model(values: Mapping[str, Any], noise_variance: float | None = None
-                ) -> InversionPipeline:
-    """The pipeline for parameter ``values``; ConfigError (with the reason) if invalid.
+def model_inputs(values: Mapping[str, Any]) -> Model:
+    """Inversion config, vehicle and input options of parameter ``values`` (ConfigError with
+    the reason if invalid)."""
+    return (inversion_config(values), VehicleParams(**{n: values[n] for n in PARAM_NAMES}),
+            PolicyOptions.from_mapping(values))
 
-    ``noise_variance``: IMU accelerometer variance (m/s^2)^2 for the Kalman method.
+
+def build_model(values: Mapping[str, Any], noise_variance: float | None = None) -> InputPolicy:
+    """The input policy for parameter ``values``; ConfigError (with the reason) if invalid.
+
+    ``noise_variance``: a fixed accelerometer variance (m/s^2)^2 (the filters are built at
+    once, which checks e.g. the feedback stability); None: the policy's rule from the data.
     """
-    vehicle = VehicleParams(**{n: values[n] for n in PARAM_NAMES})
-    return InversionPipeline(inversion_config(values), vehicle, noise_variance,
-                             **{n: values[n] for n in SANITIZER_PARAMS})
+    config, vehicle, options = model_inputs(values)
+    return InputPolicy(config, vehicle, options=options, noise_variance=noise_variance)
 
 
 class IrregularityNode(ManagedNode):
@@ -97,22 +108,22 @@ class IrregularityNode(ManagedNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self._values: dict[str, Any] | None = None
-        self._noise_variance: float | None = None
-        self._pipeline: InversionPipeline | None = None
-        self._candidate: InversionPipeline | None = None
-        self._next_model: InversionPipeline | None = None
-        self._retired: Counter[str] = Counter()  # counters of replaced pipelines
-        self._counts: Counter[str] = Counter()   # rebuild, internal_error, published, flush_*
+        self.policy: InputPolicy | None = None
+        self._candidate: Model | None = None
+        self._next_model: Model | None = None
+        self._retired: Counter[str] = Counter()  # counters of replaced policies
+        self._counts: Counter[str] = Counter()   # internal_error, published, flush_*
         self._latency = LatencyWindow()
         self._deltas = {task: Deltas() for task in ('imu', 'inversion')}
         self._first_stamp_ns = -1  # first IMU stamp processed since the process started
+        self._speed_mps = float('nan')  # speed of the newest output, m/s
         self._intake: ImuIntake | None = None
         self._diagnostics: DiagnosticsPublisher | None = None
         self._pub: Any = None
         self._pacer: OutputPacer | None = None
         self._idle_timer: Any = None
         self._last_input = time.monotonic()  # steady time of the last IMU batch, s
-        self._unflushed = False  # samples pushed since the last flush
+        self._unflushed = False  # samples given to the policy since the last flush
         self.add_pre_set_parameters_callback(accept_integers(SPECS))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -120,9 +131,10 @@ class IrregularityNode(ManagedNode):
 
     # ------------------------------------------------------------------ lifecycle
     def configure(self) -> None:
-        """Read and validate the parameters, build the pipeline and the publisher."""
+        """Read and validate the parameters, build the policy and the publisher."""
         values = self._declare_parameters()
-        self._pipeline = build_model(values, self._noise_variance)
+        build_model(values, values['noise_std_mps2'] ** 2)  # every check of the core, now
+        self.policy = build_model(values)
         self._values = values
         self._pub = self.create_lifecycle_publisher(PointStamped, 'track/irregularity',
                                                     output_qos(values['output_qos_depth']))
@@ -132,12 +144,13 @@ class IrregularityNode(ManagedNode):
                                   values['flush_rate_hz'])
 
     def activate(self) -> None:
-        """Subscriptions and the diagnostics reporter."""
+        """Subscriptions, the idle check and the diagnostics reporter."""
         assert self._values is not None
-        self._intake = ImuIntake(self, self._values, self._on_messages)
+        self._intake = ImuIntake(self, self._values, self._on_messages, self._on_odometry)
         self._diagnostics = DiagnosticsPublisher(self, self._values['hardware_id'])
         self._diagnostics.add('imu input', self._report_input)
         self._diagnostics.add('inversion', self._report_inversion)
+        self._diagnostics.add('input checks', lambda _: checks_report(self.policy))
         idle = self._values['idle_flush_s']
         self._idle_timer = self.create_timer(min(0.1, idle / 2), self._on_idle_check,
                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -162,9 +175,10 @@ class IrregularityNode(ManagedNode):
             self._idle_timer = None
 
     def release(self) -> None:
-        """Drop the pipeline (its counters are kept) and the publisher."""
-        if self._pipeline is not None:
-            self._retire(None)
+        """Drop the policy (its counters are kept) and the publisher."""
+        if self.policy is not None:
+            self._retired.update(self.policy.counters)
+            self.policy = None
         if self._pacer is not None:
             self._counts['published'] += self._pacer.published
             self._pacer.destroy()
@@ -188,8 +202,9 @@ class IrregularityNode(ManagedNode):
         return values
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Reject invalid values or combinations with the reason; build the new model early.
-        Unconfigured: only the specs' own checks (configure validates the whole set)."""
+        """Reject invalid values or combinations with the core's reason (the filters are built
+        once to check them). Unconfigured: only the specs' own checks (configure validates
+        the whole set)."""
         if self._values is None:
             reason = next((r for r in (s.check(p.value) for p in params for s in SPECS
                                        if s.name == p.name) if r), None)
@@ -197,8 +212,10 @@ class IrregularityNode(ManagedNode):
         values, reason = merged(self._values, SPECS, params)
         self._candidate = None
         if any(p.name in MODEL_PARAMS for p in params):
+            variance = self.policy.noise_variance or values['noise_std_mps2'] ** 2
             try:  # the core's reasons are the more telling ones
-                candidate = build_model(values, self._noise_variance)
+                build_model(values, variance)
+                candidate = model_inputs(values)
             except ConfigError as exc:
                 reason = str(exc)
             else:
@@ -206,7 +223,7 @@ class IrregularityNode(ManagedNode):
         return SetParametersResult(successful=reason is None, reason=reason or '')
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
-        """Accepted: store the values; a new model takes over at the next sample."""
+        """Accepted: store the values; the policy is rebuilt at the next sample."""
         if self._values is None:
             return
         self._values, _ = merged(self._values, SPECS, params)
@@ -218,6 +235,12 @@ class IrregularityNode(ManagedNode):
         t_rx = time.monotonic()
         self.process(msgs)
         self._latency.add(time.monotonic() - t_rx)
+
+    def _on_odometry(self, stamp_ns: int, speed_mps: float) -> None:
+        """An odometry sample: IMU samples waiting for their speed may become final."""
+        if self.policy is not None:
+            out = self._guarded(lambda: self.policy.odometry([stamp_ns], [speed_mps]))
+            self._publish(out, live=len(out) if out is not None else 0)
 
     def _on_idle_check(self) -> None:
         """No IMU message for idle_flush_s: the stream ended, flush what the filters hold
@@ -232,85 +255,68 @@ class IrregularityNode(ManagedNode):
             self._flush('flush_idle')
 
     def _flush(self, reason: str) -> Output | None:
-        """Flush the pipeline (a stream ended): publish its pending outputs, count ``reason``."""
-        if self._pipeline is None or not self._unflushed:
+        """Flush the policy (a stream ended): publish its pending outputs, count ``reason``."""
+        if self.policy is None or not self._unflushed:
             return None
         self._unflushed = False
         self._counts[reason] += 1
-        return self._publish(self._pipeline.flush())
+        return self._publish(self._guarded(self.policy.flush))
 
     def process(self, msgs: Sequence[Imu]) -> Output | None:
-        """Convert, push through the pipeline, publish; returns what was published (None when
-        not active)."""
-        if self._intake is None or self._pipeline is None or self._values is None:
+        """Convert, give to the policy, publish; returns what was published (None when not
+        active)."""
+        if self._intake is None or self.policy is None or self._values is None:
             return None
         self._last_input = time.monotonic()
-        samples = self._intake.prepare(msgs, self._pipeline.config, self._values)
-        if samples is not None and self._first_stamp_ns < 0:
-            self._first_stamp_ns = int(samples.stamps_ns[0])
-        if samples is not None and samples.reported_variance is not None:
-            self._use_reported_noise(samples.reported_variance)
-        flushed = self._switch_model()
-        out = None
-        if samples is not None:
+        batch = self._intake.convert(msgs)
+        outs = [self._switch_model()]
+        if batch is not None:
+            if self._first_stamp_ns < 0:
+                self._first_stamp_ns = int(batch.stamps_ns[0])
             self._unflushed = True
-            try:
-                out = self._pipeline.push(samples.stamps_ns, samples.accel_up, samples.speed_mps,
-                                          samples.frame_ids)
-            except Exception as exc:  # the node must survive anything the core trips on
-                self._counts['internal_error'] += 1
-                self.get_logger().error(f'inversion failed, filters reset: {exc!r}',
-                                        throttle_duration_sec=1.0)
-                self._retire(build_model(self._values, self._noise_variance))
-        return self._publish(self._join(flushed, out), live=len(msgs))
+            outs.append(self._guarded(lambda: self.policy.imu(
+                batch.stamps_ns, batch.accel, batch.frame_ids, batch.covariance)))
+        return self._publish(self._join(outs), live=len(msgs))
 
-    def _use_reported_noise(self, variance: float) -> None:
-        """kalman: the first IMU-reported variance replaces noise_std_mps2 before any sample
-        (later it applies at the next rebuild)."""
-        if self._noise_variance is None and self._pipeline.config.method == 'kalman':
-            self._noise_variance = variance
-            if self._pipeline.counters.get('accepted', 0) == 0:
-                self._pipeline = build_model(self._values, variance)
+    def _guarded(self, step: Any) -> Output | None:
+        """``step()`` of the core; an exception is counted and logged and the policy rebuilt
+        (chainage continued): the node must survive anything the core trips on."""
+        try:
+            return step()
+        except Exception as exc:
+            self._counts['internal_error'] += 1
+            self.get_logger().error(f'inversion failed, filters reset: {exc!r}',
+                                    throttle_duration_sec=1.0)
+            self._retired.update(self.policy.counters)
+            self.policy = build_model(self._values)
+            return None
 
     def _switch_model(self) -> Output | None:
         """Apply a pending parameter change: flush the old filters, start the new ones."""
         if self._next_model is None:
             return None
-        flushed = self._pipeline.flush()
-        self._retire(self._next_model)
+        config, vehicle, options = self._next_model
         self._next_model = None
-        self._counts['rebuild'] += 1
-        return flushed
+        return self._guarded(lambda: self.policy.rebuild(config, vehicle, options=options))
 
-    def _retire(self, successor: InversionPipeline | None) -> None:
-        """Replace (or drop) the pipeline, keeping its counters; the successor continues the
-        chainage."""
-        self._retired.update(self._pipeline.counters)
-        if successor is not None:
-            successor.start_chainage_m = self._pipeline.chainage_m
-        self._pipeline = successor
-
-    @staticmethod
-    def _join(*outs: Output | None) -> Output | None:
-        outs = tuple(o for o in outs if o is not None and len(o))
-        if len(outs) < 2:
-            return outs[0] if outs else None
-        return Output(*(np.concatenate(parts) for parts in zip(
-            *((o.stamps_ns, o.chainage_m, o.u_m) for o in outs), strict=True)))
+    def _join(self, outs: list[Output | None]) -> Output | None:
+        outs = [o for o in outs if o is not None and len(o)]
+        return Output.concat(outs) if outs else None
 
     def _publish(self, out: Output | None, live: int = 0) -> Output | None:
-        """One PointStamped per output sample, stamped with its IMU stamp, through the pacer
-        (``live``: input samples of the batch, see OutputPacer.put)."""
+        """One PointStamped per output sample, stamped with its IMU stamp (x chainage, y
+        quality code, z u or NaN), through the pacer (``live``: see OutputPacer.put)."""
         if out is None or not len(out):
             return out
-        xyz = np.column_stack([out.chainage_m, np.zeros(len(out)), out.u_m])
+        self._speed_mps = float(out.speed_mps[-1])
+        xyz = np.column_stack([out.chainage_m, out.quality, out.u_m])
         self._pacer.put(out.stamps_ns, xyz, live)
         return out
 
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
-        """Cumulative counts by reason over the node's life (all pipelines)."""
-        live = [] if self._pipeline is None else [Counter(self._pipeline.counters)]
+        """Cumulative counts by reason over the node's life (all policies)."""
+        live = [] if self.policy is None else [Counter(self.policy.counters)]
         intake = [] if self._intake is None else [self._intake.counts]
         paced = Counter() if self._pacer is None else Counter(published=self._pacer.published)
         return dict(sum((*live, *intake, self._counts, paced), self._retired.copy()))
@@ -318,26 +324,31 @@ class IrregularityNode(ManagedNode):
     def _report_input(self, elapsed_s: float) -> Report:
         totals = self.counters()
         return self._intake.report(totals, self._deltas['imu'](totals), elapsed_s,
-                                   self._pipeline.config.frame_id)
+                                   self.policy.config.frame_id)
 
     def _report_inversion(self, elapsed_s: float) -> Report:
-        pipe, totals = self._pipeline, self.counters()
+        policy, totals = self.policy, self.counters()
         delta = self._deltas['inversion'](totals)
-        cfg, intake = pipe.config, self._intake
+        cfg, pipe = policy.config, policy.pipeline
         values: dict[str, object] = {
             'method': cfg.method, 'band': cfg.band,
-            'band_delay_samples': pipe.delay_samples,
-            'band_delay_s': pipe.delay_samples / cfg.rate_hz,
-            'stability_margin_per_s': pipe.stability_margin,
+            'band_delay_samples': policy.delay_samples,
+            'band_delay_s': policy.delay_samples / cfg.rate_hz,
+            'stability_margin_per_s': pipe.stability_margin if pipe is not None
+            else float('nan'),
             'published': totals.get('published', 0),
             'output_rate_hz': delta.get('published', 0) / elapsed_s,
+            **quality_values(totals, delta),
             'rebuilds': totals.get('rebuild', 0), 'redesigns': totals.get('redesign', 0),
             'idle_flushes': totals.get('flush_idle', 0),
             'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending,
+            'held_for_speed': policy.held,
             'internal_errors': totals.get('internal_error', 0),
-            'speed_mps': intake.speed_mps,
-            'speed_source': 'parameter' if intake.odom_missing or not self._values['use_odom']
-            else 'odom',
+            'speed_mps': self._speed_mps,
+            'speed_source': 'odom' if policy.options.use_odom else 'parameter',
+            'noise_std_mps2': np.sqrt(policy.noise_variance) if policy.noise_variance
+            is not None else float('nan'),
+            'noise_source': policy.noise_source,
             'first_stamp_ns': self._first_stamp_ns, **self.lifecycle_values(),
         }
         values.update(self._latency.take())
@@ -345,9 +356,6 @@ class IrregularityNode(ManagedNode):
             return Report(ERROR, 'inversion failed and was reset', values)
         if delta.get('received', 0) == 0:
             return Report(STALE, 'no input: nothing to invert', values)
-        if intake.odom_missing:
-            return Report(WARN, f'no odometry: using speed_mps = {intake.speed_mps:g} m/s',
-                          values)
         return Report(OK, f'{cfg.method}, band {cfg.band}', values)
 
 

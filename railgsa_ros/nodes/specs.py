@@ -43,8 +43,9 @@ NODE_SPECS = (
               'the fallback while no odometry arrives', read_only=True),
     ParamSpec('odom_timeout_s', 1.0, 'odometry older than this (IMU stamp minus odom stamp) is '
               'missing, s', (0.01, 3600.0)),
-    ParamSpec('wrong_frame_policy', 'reject', 'what to do with IMU samples whose frame_id is '
-              'not frame_id (counted and warned once either way)', choices=('reject', 'accept')),
+    ParamSpec('wrong_frame_policy', 'accept', 'IMU samples whose frame_id is not frame_id: '
+              "accept (a driver's own frame, used with a WARN finding) or reject (strict)",
+              choices=('accept', 'reject')),
     ParamSpec('imu_qos_depth', SENSOR_DEPTH, 'imu/data reader history, samples',
               (MIN_SENSOR_DEPTH, 100_000), read_only=True),
     ParamSpec('imu_reliability', RELIABILITIES[0], 'imu/data subscription: best_effort (live '
@@ -81,10 +82,6 @@ UNCERTAINTY_SPECS = (
 #: the parameters of irregularity_node and uncertainty_node, and ``autostart``
 ALL_PARAMETER_NAMES = frozenset(s.name for s in (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS,
                                                   *UNCERTAINTY_SPECS)) | {'autostart'}
-#: NODE_SPECS handed to the core's input sanitiser
-SANITIZER_PARAMS = ('stuck_s', 'backward_reset_s')
-
-
 def inversion_config(values: Mapping[str, Any]) -> InversionConfig:
     """The InversionConfig of parameter ``values``; ConfigError with the reason if invalid."""
     return InversionConfig.from_mapping({s.name: values[s.name] for s in INVERSION_SPECS})

@@ -42,6 +42,7 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu
 
+from railgsa_ros.inverse.policy import PolicyOptions
 from railgsa_ros.nodes.diagnostics import (
     ERROR,
     OK,
@@ -49,7 +50,9 @@ from railgsa_ros.nodes.diagnostics import (
     Deltas,
     DiagnosticsPublisher,
     Report,
+    checks_report,
     make_status,
+    quality_values,
 )
 from railgsa_ros.nodes.imu_conversion import NS_PER_S
 from railgsa_ros.nodes.imu_input import ImuIntake
@@ -60,7 +63,6 @@ from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
     NODE_SPECS,
-    SANITIZER_PARAMS,
     UNCERTAINTY_SPECS,
     VEHICLE_SPECS,
     vehicle_values,
@@ -112,7 +114,6 @@ class UncertaintyNode(ManagedNode):
         super().__init__(NODE_NAME, **kwargs)
         self._values: dict[str, Any] = {}
         self.stream: UncertaintyStream | None = None
-        self._noise_variance: float | None = None
         self._retired: Counter[str] = Counter()
         self._counts: Counter[str] = Counter()
         self._window_ms = (float('nan'), 0.0)  # last, max compute time per window
@@ -153,18 +154,18 @@ class UncertaintyNode(ManagedNode):
         design = self.stream.design
         self.get_logger().info(
             f'{design.points} rule points ({self.config.rule}, order {self.config.order}, '
-            f'{design.fit}) over {", ".join(design.names)}; band delay '
-            f'{self.stream.delay_samples} samples')
+            f'{design.fit}) over {", ".join(design.names)}')
 
     def activate(self) -> None:
         """The polled IMU intake, its timer and the diagnostics reporter."""
         values = self._values
-        self._intake = ImuIntake(self, values)
+        self._intake = ImuIntake(self, values, on_odometry=self._on_odometry)
         self._timer = self.create_timer(values['process_period_s'], self._on_timer,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._diagnostics = DiagnosticsPublisher(self, values['hardware_id'])
         self._diagnostics.add('imu input', self._report_input)
         self._diagnostics.add('uncertainty', self._report_uncertainty)
+        self._diagnostics.add('input checks', lambda _: checks_report(self.stream.policy))
 
     def deactivate(self) -> None:
         """Process the input waiting in the reader (one history at most), flush the stream,
@@ -214,7 +215,9 @@ class UncertaintyNode(ManagedNode):
             return
         self._unflushed = False
         self._counts[reason] += 1
-        self._publish_update(self.stream.flush(), 0)
+        update = self._guarded(self.stream.flush)
+        if update is not None:
+            self._publish_update(update, 0)
 
     def process(self, msgs: Sequence[Imu]) -> Band | None:
         """Convert, push through the stream, publish band and windows; returns the band (None
@@ -222,30 +225,43 @@ class UncertaintyNode(ManagedNode):
         if self._intake is None or self.stream is None:
             return None
         self._last_input = time.monotonic()
-        samples = self._intake.prepare(msgs, self.config.inversion, self._values)
-        if samples is None:
+        batch = self._intake.convert(msgs)
+        if batch is None:
             return None
         if self._first_stamp_ns < 0:
-            self._first_stamp_ns = int(samples.stamps_ns[0])
-        self._use_reported_noise(samples.reported_variance)
+            self._first_stamp_ns = int(batch.stamps_ns[0])
         self._unflushed = True
+        update = self._guarded(lambda: self.stream.imu(batch.stamps_ns, batch.accel,
+                                                       batch.frame_ids, batch.covariance))
+        if update is None:
+            return None
+        self._publish_update(update, len(msgs))
+        return update.band
+
+    def _on_odometry(self, stamp_ns: int, speed_mps: float) -> None:
+        """An odometry sample: IMU samples waiting for their speed may become final."""
+        if self.stream is not None:
+            update = self._guarded(lambda: self.stream.odometry([stamp_ns], [speed_mps]))
+            if update is not None:
+                self._publish_update(update, len(update.band))
+
+    def _guarded(self, step: Any) -> Update | None:
+        """``step()`` of the core; an exception is counted and logged and the stream rebuilt
+        (chainage continued): the node must survive anything the core trips on."""
         try:
-            update = self.stream.push(samples.stamps_ns, samples.accel_up, samples.speed_mps,
-                                      samples.frame_ids)
-        except Exception as exc:  # the node must survive anything the core trips on
+            return step()
+        except Exception as exc:
             self._counts['internal_error'] += 1
             self.get_logger().error(f'uncertainty stream failed, filters reset: {exc!r}',
                                     throttle_duration_sec=1.0)
             self._rebuild()
             return None
-        self._publish_update(update, len(msgs))
-        return update.band
 
     def _publish_update(self, update: Update, live: int) -> None:
         """The band (one Vector3Stamped per sample, stamped with its IMU stamp, through the
         pacer; ``live``: input samples of the batch) and the closed windows."""
         band = update.band
-        if len(band):
+        if len(band):  # x lower, y mean, z upper: NaN where INVALID, widened where DEGRADED
             self._pacer.put(band.stamps_ns, np.column_stack([band.lower_m, band.mean_m,
                                                              band.upper_m]), live)
         for record in update.windows:
@@ -254,25 +270,19 @@ class UncertaintyNode(ManagedNode):
             self._window_ms = (last, max(self._window_ms[1], last))
         self._counts['windows'] += len(update.windows)
 
-    def _use_reported_noise(self, variance: float | None) -> None:
-        """kalman: the first IMU-reported variance replaces noise_std_mps2 before any sample,
-        as in irregularity_node."""
-        if self.config.inversion.method == 'kalman' and self._noise_variance is None and \
-                variance is not None and self.stream.counters.get('accepted', 0) == 0:
-            self._noise_variance = variance
-            self._rebuild()
-
-    def _new_stream(self, start_chainage_m: float = 0.0) -> UncertaintyStream:
-        """A stream for the configuration, with the node's sanitiser limits."""
-        stream = UncertaintyStream(self.config, self.vehicle, self.dists, self._noise_variance)
-        stream.pipeline.sanitizer.set_limits(*(self._values[n] for n in SANITIZER_PARAMS))
-        stream.pipeline.start_chainage_m = start_chainage_m
-        return stream
+    def _new_stream(self) -> UncertaintyStream:
+        """A stream (its input policy with the bank) for the configuration."""
+        return UncertaintyStream(self.config, self.vehicle, self.dists,
+                                 options=PolicyOptions.from_mapping(self._values))
 
     def _rebuild(self) -> None:
-        """A new stream (after a failure or for the reported noise) continuing the chainage."""
-        self._retired.update(self.stream.counters)
-        self.stream = self._new_stream(self.stream.pipeline.chainage_m)
+        """After a failure: the stream's filters rebuilt, continuing the chainage (the pending
+        outputs are dropped); a new stream if even that fails."""
+        try:
+            self.stream.policy.rebuild()
+        except Exception:  # the node must survive the core
+            self._retired.update(self.stream.counters)
+            self.stream = self._new_stream()
 
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
@@ -296,12 +306,12 @@ class UncertaintyNode(ManagedNode):
         values: dict[str, object] = {
             'rule': self.config.rule, 'order': self.config.order, 'fit': design.fit,
             'parameters': ' '.join(design.names), 'rule_points': design.points,
-            'band_delay_samples': self.stream.delay_samples,
+            'band_delay_samples': self.stream.policy.delay_samples,  # 0 before the first 64
             'published': totals.get('published', 0), 'windows': totals.get('windows', 0),
             'idle_flushes': totals.get('flush_idle', 0),
             'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending,
             'window_compute_ms': self._window_ms[0], 'window_compute_max_ms': self._window_ms[1],
-            'cpu_fraction_of_one_core': cpu, 'speed_mps': self._intake.speed_mps,
+            'cpu_fraction_of_one_core': cpu, **quality_values(totals, delta),
             'internal_errors': totals.get('internal_error', 0),
             'first_stamp_ns': self._first_stamp_ns, **self.lifecycle_values()}
         if delta.get('internal_error', 0):
