@@ -68,7 +68,11 @@ class ImuIntake:
             self._node.destroy_subscription(self._odom_sub)
 
     def take(self, first: list[Imu] | None = None, limit: int = MAX_BATCH) -> list[Imu]:
-        """``first`` plus the messages waiting in the reader history, ``limit`` at most."""
+        """``first`` plus the messages waiting in the reader history, ``limit`` at most; then
+        every odometry message waiting goes to ``on_odometry`` first, so the policy knows the
+        odometry that arrived with these IMU samples before it gets them: its speed decisions
+        (odom_timeout_s) then depend on the stamps, not on how the executor interleaved the two
+        topics (a batch of 2000 spans 2 s, more than the timeout)."""
         msgs = first or []
         handle = self.sub.handle
         with handle:
@@ -77,7 +81,20 @@ class ImuIntake:
                 if taken is None:
                     break
                 msgs.append(taken[0])
+        self.take_odometry()
         return msgs
+
+    def take_odometry(self) -> None:
+        """Hand every odometry message waiting in its reader history to ``on_odometry``."""
+        if self._odom_sub is None:
+            return
+        handle = self._odom_sub.handle
+        while True:
+            with handle:
+                taken = handle.take_message(Odometry, False)
+            if taken is None:
+                return
+            self._on_odom(taken[0])
 
     def take_waiting(self) -> list[Imu]:
         """The messages waiting now, at most one reader history (bounded while a burst still

@@ -239,8 +239,9 @@ class IrregularityNode(ManagedNode):
     def _on_odometry(self, stamp_ns: int, speed_mps: float) -> None:
         """An odometry sample: IMU samples waiting for their speed may become final."""
         if self.policy is not None:
+            held = self.policy.held
             out = self._guarded(lambda: self.policy.odometry([stamp_ns], [speed_mps]))
-            self._publish(out, live=len(out) if out is not None else 0)
+            self._publish(out, live=self._released(held))
 
     def _on_idle_check(self) -> None:
         """No IMU message for idle_flush_s: the stream ended, flush what the filters hold
@@ -270,13 +271,21 @@ class IrregularityNode(ManagedNode):
         self._last_input = time.monotonic()
         batch = self._intake.convert(msgs)
         outs = [self._switch_model()]
+        held = self.policy.held
         if batch is not None:
             if self._first_stamp_ns < 0:
                 self._first_stamp_ns = int(batch.stamps_ns[0])
             self._unflushed = True
+            held += len(batch)
             outs.append(self._guarded(lambda: self.policy.imu(
                 batch.stamps_ns, batch.accel, batch.frame_ids, batch.covariance)))
-        return self._publish(self._join(outs), live=len(msgs))
+        return self._publish(self._join(outs), live=self._released(held))
+
+    def _released(self, held: int) -> int:
+        """Input samples that went into the filters since the policy held ``held``: each adds
+        one output at the input's pace; the rest of the outputs (a flush, a reset) are paced
+        (OutputPacer.put). Outputs released by odometry are not all live ones."""
+        return max(0, held - self.policy.held)
 
     def _guarded(self, step: Any) -> Output | None:
         """``step()`` of the core; an exception is counted and logged and the policy rebuilt

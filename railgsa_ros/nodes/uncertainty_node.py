@@ -231,19 +231,26 @@ class UncertaintyNode(ManagedNode):
         if self._first_stamp_ns < 0:
             self._first_stamp_ns = int(batch.stamps_ns[0])
         self._unflushed = True
+        held = self.stream.policy.held + len(batch)
         update = self._guarded(lambda: self.stream.imu(batch.stamps_ns, batch.accel,
                                                        batch.frame_ids, batch.covariance))
         if update is None:
             return None
-        self._publish_update(update, len(msgs))
+        self._publish_update(update, self._released(held))
         return update.band
 
     def _on_odometry(self, stamp_ns: int, speed_mps: float) -> None:
         """An odometry sample: IMU samples waiting for their speed may become final."""
         if self.stream is not None:
+            held = self.stream.policy.held
             update = self._guarded(lambda: self.stream.odometry([stamp_ns], [speed_mps]))
             if update is not None:
-                self._publish_update(update, len(update.band))
+                self._publish_update(update, self._released(held))
+
+    def _released(self, held: int) -> int:
+        """Input samples that went into the filters since the policy held ``held``: one live
+        output each; the rest (a flush, a reset) is paced (OutputPacer.put)."""
+        return max(0, held - self.stream.policy.held)
 
     def _guarded(self, step: Any) -> Update | None:
         """``step()`` of the core; an exception is counted and logged and the stream rebuilt
