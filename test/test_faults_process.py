@@ -128,7 +128,7 @@ def test_kill_and_restart_resumes_clean_and_others_keep_going(
     np.testing.assert_array_equal(new_t, ref.stamps_ns)
     np.testing.assert_allclose(new_u, ref.u_m, rtol=0, atol=1e-15)  # a clean start
     full = offline(stamps, acc).u_m
-    assert np.abs(new_u).max() <= 1.2 * np.abs(full).max()  # no spike
+    assert np.nanmax(np.abs(new_u)) <= 1.2 * np.nanmax(np.abs(full))  # no spike (INVALID: NaN)
     assert uncertainty.running() and recorder.running()
 
     results = [p.stop(signal.SIGINT) for p in (restarted, uncertainty, recorder)]

@@ -1,7 +1,9 @@
 """IMU and odometry intake shared by the railgsa nodes: subscriptions and conversion only.
 
 Subscribes ``imu/data`` (depth ``imu_qos_depth``, ``imu_reliability``) and, with ``use_odom``,
-``odom`` (``odom_reliability``).
+``odom`` (``odom_reliability``, the same depth: odometry comes slower than the IMU, so its reader
+covers at least as long a stall; a dropped odometry message makes IMU samples INVALID for want of
+a speed, a decision that would then depend on the node's load).
 The IMU callback takes the message it was called for plus every message already waiting in the
 reader history and hands them over as one list, so a busy node works on growing batches instead
 of falling behind. ``convert`` turns such a list into arrays (malformed messages dropped and
@@ -25,7 +27,6 @@ from railgsa_ros.nodes.imu_conversion import ImuBatch, imu_batch, odom_speed
 from railgsa_ros.nodes.qos import sensor_qos
 
 MAX_BATCH = 2000  #: messages handed over per callback at most
-ODOM_DEPTH = 50
 #: rejection reasons on /diagnostics: the core sanitiser's plus malformed messages
 REJECT_REASONS = (*REASONS, 'malformed')
 
@@ -56,7 +57,7 @@ class ImuIntake:
             sensor_qos(values['imu_qos_depth'], values['imu_reliability']))
         self._odom_sub = node.create_subscription(
             Odometry, 'odom', self._on_odom,
-            sensor_qos(ODOM_DEPTH, values['odom_reliability'])) if values['use_odom'] else None
+            sensor_qos(self.depth, values['odom_reliability'])) if values['use_odom'] else None
 
     def destroy(self) -> None:
         """Destroy the subscriptions (and the helper reader node)."""
