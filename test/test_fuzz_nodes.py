@@ -230,5 +230,6 @@ def test_uncertainty_node_handlers(rig: Callable, wait_for: Callable) -> None:
         ('lower_m', 'mean_m', 'upper_m')) and bool(np.all(np.isfinite(band.chainage_m))))
     assert wait_for(lambda: listener.count['track/irregularity_band']
                     >= node.counters().get('published', 0), 10.0)
-    assert wait_for(lambda: listener.count['track/sensitivity'] > 0, 10.0)
+    if node.counters().get('valid', 0) + node.counters().get('degraded', 0):  # windows take
+        assert wait_for(lambda: listener.count['track/sensitivity'] > 0, 10.0)  # those only
     assert listener.bad == []
