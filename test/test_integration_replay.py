@@ -166,6 +166,13 @@ class Probe:
         with self.lock:
             return int(self.latest.get(status, {}).get(key, -1))
 
+    def flushed(self) -> bool:
+        """Both nodes flushed the end of the stream (idle_flush_s after the last input) and
+        published all of it (the paced flush takes seconds)."""
+        statuses = (f'{IRR_NODE}: inversion', f'{UNC_NODE}: uncertainty')
+        return all(self.value(s, 'idle_flushes') >= 1 and self.value(s, 'output_queue') == 0
+                   for s in statuses)
+
     def settled(self, n_imu: int, timeout: float) -> bool:
         """Wait until both nodes' received and published counts stayed the same over two
         consecutive reports (the nodes report once a second) with every one of the ``n_imu``
@@ -180,7 +187,7 @@ class Probe:
             time.sleep(1.1)
             now = [self.value(s, k) for s, k in keys]
             quiet = quiet + 1 if min(now) > 0 and now == before else 0
-            if quiet >= (1 if now[:2] == [n_imu] * 2 else QUIET_REPORTS):
+            if quiet >= (1 if now[:2] == [n_imu] * 2 and self.flushed() else QUIET_REPORTS):
                 return True
             before = now
         return False
