@@ -288,17 +288,13 @@ class IrregularityNode(ManagedNode):
         return max(0, held - self.policy.held)
 
     def _guarded(self, step: Any) -> Output | None:
-        """``step()`` of the core; an exception is counted and logged and the policy rebuilt
-        (chainage continued): the node must survive anything the core trips on."""
-        try:
-            return step()
-        except Exception as exc:
-            self._counts['internal_error'] += 1
-            self.get_logger().error(f'inversion failed, filters reset: {exc!r}',
-                                    throttle_duration_sec=1.0)
-            self._retired.update(self.policy.counters)
-            self.policy = build_model(self._values)
-            return None
+        """``step()`` of the core through ``guarded``: on an exception the policy is rebuilt."""
+        return self.guarded(step, 'inversion', self._rebuild_policy)
+
+    def _rebuild_policy(self) -> None:
+        """A fresh policy for the current values; the old one's counters are kept."""
+        self._retired.update(self.policy.counters)
+        self.policy = build_model(self._values)
 
     def _switch_model(self) -> Output | None:
         """Apply a pending parameter change: flush the old filters, start the new ones."""

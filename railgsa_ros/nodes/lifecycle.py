@@ -19,6 +19,7 @@ restart is visible there.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import sys
 import time
 from typing import Any
@@ -81,6 +82,20 @@ class ManagedNode(Node):
         """Shut down through the lifecycle: deactivate (pending input processed, filters
         flushed, outputs published and acknowledged), then release."""
         self.trigger_shutdown()
+
+    def guarded(self, step: Callable[[], Any], what: str, recover: Callable[[], None]) -> Any:
+        """``step()`` of the core, or None when it raised: the exception is counted as
+        ``internal_error`` (in the subclass's ``_counts``), logged at most once a second and
+        ``recover()`` rebuilds the core (chainage continued): a node survives anything the core
+        trips on."""
+        try:
+            return step()
+        except Exception as exc:
+            self._counts['internal_error'] += 1
+            self.get_logger().error(f'{what} failed, filters reset: {exc!r}',
+                                    throttle_duration_sec=1.0)
+            recover()
+            return None
 
     def lifecycle_values(self) -> dict[str, object]:
         """Process and lifecycle facts for /diagnostics."""

@@ -253,16 +253,8 @@ class UncertaintyNode(ManagedNode):
         return max(0, held - self.stream.policy.held)
 
     def _guarded(self, step: Any) -> Update | None:
-        """``step()`` of the core; an exception is counted and logged and the stream rebuilt
-        (chainage continued): the node must survive anything the core trips on."""
-        try:
-            return step()
-        except Exception as exc:
-            self._counts['internal_error'] += 1
-            self.get_logger().error(f'uncertainty stream failed, filters reset: {exc!r}',
-                                    throttle_duration_sec=1.0)
-            self._rebuild()
-            return None
+        """``step()`` of the core through ``guarded``: on an exception the stream is rebuilt."""
+        return self.guarded(step, 'uncertainty stream', self._rebuild)
 
     def _publish_update(self, update: Update, live: int) -> None:
         """The band (one Vector3Stamped per sample, stamped with its IMU stamp, through the
