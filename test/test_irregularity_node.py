@@ -508,3 +508,105 @@ def test_fuzzed_messages_never_raise_and_nan_only_when_invalid(ros_context: Any)
         'wrong_frame')) + node.policy.held  # each message once (or still held for the noise)
     assert totals.get('internal_error', 0) == 0 and totals.get('published', 0) > 0
     node.destroy_node()
+
+
+def imu_msgs3(stamps_ns: np.ndarray, accel: np.ndarray) -> list:
+    """Imu messages carrying all three accelerometer axes (covariance all zeros: unknown)."""
+    msgs = imu_msgs(stamps_ns, accel[:, 2])
+    for m, (ax, ay, _) in zip(msgs, np.asarray(accel, float).tolist(), strict=True):
+        m.linear_acceleration.x, m.linear_acceleration.y = ax, ay
+    return msgs
+
+
+def _rotated_to_minus_y(run: Any) -> np.ndarray:
+    """The scenario's accelerations as a sensor mounted with its -y axis up (z -> -y)."""
+    acc = np.zeros_like(run.accel)
+    acc[:, 0], acc[:, 1], acc[:, 2] = run.accel[:, 0], -run.accel[:, 2], run.accel[:, 1]
+    return acc
+
+
+def test_gravity_on_minus_y_live_every_output_invalid_and_a_finding_naming_the_axis(
+        rig: Callable) -> None:
+    from railgsa_ros.scenario import run_scenario
+
+    run = run_scenario('german-low', speed_mps=40.0, duration_s=3.0, rate_hz=1000.0,
+                       sensor='adxl355', seed=2)  # a real sensor: the other axes are not stuck
+    stamps, acc = run.stamps_ns + T0_NS, _rotated_to_minus_y(run)
+    ref = _policy({}).imu(stamps, acc, None, np.zeros((len(stamps), 9)))
+    assert len(ref) > 0 and np.all(ref.quality == 2)
+    r = rig()
+    r.publish(imu_msgs3(stamps, acc))
+    got_t, _, got_z, _ = r.outputs(len(ref))
+    np.testing.assert_array_equal(got_t, ref.stamps_ns)
+    assert r.quality[:len(ref)] == [2] * len(ref)  # every published sample INVALID
+    assert np.isnan(got_z).all()
+    d = r.diagnostics(lambda d: d['input checks'][0] == b'\x02'
+                      and 'gravity' in d['input checks'][2])
+    _, message, values = d['input checks']
+    assert values['gravity'].startswith('ERROR') and "accel_axis to '-y'" in values['gravity']
+    assert "'-y'" in message  # the worst finding is the status line
+    inv = r.diagnostics(lambda d: d['inversion'][2]['published'] == str(len(ref)))['inversion']
+    assert inv[2]['invalid'] == str(len(ref)) and inv[2]['valid'] == '0'
+
+
+def test_rate_hz_disagreeing_with_the_data_live_is_an_error_and_invalid(run: Any,
+                                                                        rig: Callable) -> None:
+    """rate_hz 500 for 1 kHz data: docs/inversion.md, 'rate': INVALID from the end of the first
+    block of 512 stamp steps on, ERROR naming the measured rate and the fix."""
+    from railgsa_ros.inverse.policy import RATE_BLOCK
+
+    stamps, acc = run.stamps_ns[:3000] + T0_NS, run.accel[:3000, 2]
+    ref = offline(stamps, acc, rate_hz=500.0)
+    assert len(ref) > RATE_BLOCK + 1
+    r = rig(rate_hz=500.0)
+    r.publish(imu_msgs(stamps, acc))
+    got_t, _, got_z, _ = r.outputs(len(ref))
+    np.testing.assert_array_equal(got_t, ref.stamps_ns)
+    quality = np.asarray(r.quality[:len(ref)])
+    np.testing.assert_array_equal(quality, ref.quality)  # as the policy decides offline
+    assert np.all(quality[RATE_BLOCK + 1:] == 2)  # the sample after the block on: INVALID
+    assert np.isnan(got_z[RATE_BLOCK + 1:]).all()
+    d = r.diagnostics(lambda d: 'rate' in d['input checks'][2])
+    level, _, values = d['input checks']
+    assert level == b'\x02' and values['rate'].startswith('ERROR')
+    assert 'rate_hz 500' in values['rate'] and 'set rate_hz to 1000' in values['rate']
+
+
+def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
+                                                                 rig: Callable) -> None:
+    """Odometry 40 m/s, a standstill, then 20 m/s (below min_design_speed_mps 40): VALID,
+    INVALID and DEGRADED outputs; /diagnostics' valid/degraded/invalid = the point.y codes."""
+    from collections import Counter
+
+    from nav_msgs.msg import Odometry
+
+    from railgsa_ros.inverse.pipeline import Output
+
+    stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
+    odom_k = np.arange(0, len(stamps), 100)
+    speeds = np.where(odom_k < 2000, 40.0, np.where(odom_k < 3000, 0.0, 20.0))
+    params = {'use_odom': True, 'odom_timeout_s': 0.5}
+    policy = _policy(params)
+    ref = Output.concat([policy.odometry(stamps[odom_k], speeds),
+                         policy.imu(stamps, _accel(acc))])
+    want = Counter(ref.quality.tolist())
+    assert want[0] > 0 and want[1] > 0 and want[2] > 0, want
+    r = rig(**params)
+    assert r.wait_for(lambda: r.odom.get_subscription_count() > 0, 10.0)
+    for n, (k, v) in enumerate(zip(odom_k.tolist(), speeds.tolist(), strict=True)):
+        msg = Odometry()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamps[k]), 10**9)
+        msg.twist.twist.linear.x = v
+        r.odom.publish(msg)
+        assert r.wait_for(lambda n=n: r.node.counters().get('odom_received', 0) == n + 1, 5.0)
+    r.publish(imu_msgs(stamps, acc))
+    r.outputs(len(ref), timeout=60.0)
+    d = r.diagnostics(lambda d: d['inversion'][2]['published'] == str(len(ref)))
+    with r.lock:
+        got = Counter(r.quality)
+    assert sum(got.values()) == len(ref)
+    values = d['inversion'][2]
+    assert {q: int(values[q]) for q in ('valid', 'degraded', 'invalid')} == \
+        {'valid': got[0], 'degraded': got[1], 'invalid': got[2]}
+    np.testing.assert_array_equal(r.quality[:len(ref)], ref.quality)
+

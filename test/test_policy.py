@@ -312,3 +312,46 @@ def test_band_follows_the_policy_at_variable_speed(stop_and_go):
     # (the 2.5/97.5 % quantiles of 256 germ samples: 1.87 at the least here)
     half = (band.upper_m - band.lower_m)[degraded] / 2
     assert np.all(half >= 1.8 * cfg.noise_limit_m)
+
+
+@pytest.mark.parametrize('axis', ['z', '-y'])
+def test_noise_is_the_median_of_the_first_reported_variances_skipping_absent_and_unknown(axis):
+    """The noise rule against an independent computation: the median of the configured axis'
+    variance over the first NOISE_SAMPLES samples; REP 145 covariance[0] == -1 (acceleration
+    absent: the sample is rejected as nan) and all-zero covariances (unknown) are skipped;
+    later samples do not count; with none reported, noise_std_mps2^2."""
+    from railgsa_ros.inverse.policy import NOISE_SAMPLES
+
+    run = run_scenario('german-low', 20.0, 1.0, None, 'adxl355', seed=6)
+    n = 300
+    stamps, accel = run.stamps_ns[:n], run.accel[:n].copy()
+    if axis == '-y':
+        accel[:, 1], accel[:, 2] = -run.accel[:n, 2], run.accel[:n, 1]
+    rng = np.random.default_rng(11)
+    cov = np.zeros((n, 9))
+    cov[:, [0, 4, 8]] = rng.uniform(1e-6, 1e-3, (n, 3))
+    kind = rng.choice(['known', 'absent', 'zero'], n, p=[0.5, 0.25, 0.25])
+    cov[kind == 'absent', 0] = -1.0
+    cov[kind == 'zero'] = 0.0
+    col = {'z': 8, '-y': 4}[axis]
+    head = slice(0, NOISE_SAMPLES)
+    known = [cov[i, col] for i in range(NOISE_SAMPLES) if kind[i] == 'known']
+    expected = sorted(known)[len(known) // 2] if len(known) % 2 else \
+        (sorted(known)[len(known) // 2 - 1] + sorted(known)[len(known) // 2]) / 2
+    assert 0 < len(known) < NOISE_SAMPLES and expected != np.median(cov[:, col])
+    options = PolicyOptions(use_odom=False)
+    cfg = InversionConfig(rate_hz=run.rate_hz, accel_axis=axis, speed_mps=20.0)
+    policy = InputPolicy(cfg, options=options)
+    for lo in range(0, n, 37):  # batching does not matter
+        policy.imu(stamps[lo:lo + 37], accel[lo:lo + 37], None, cov[lo:lo + 37])
+    assert policy.noise_variance == pytest.approx(expected, rel=1e-12)
+    assert f'median of {len(known)}' in policy.noise_source
+    assert policy.counters.get('nan', 0) == int(np.sum(kind == 'absent'))  # absent: rejected
+    # none reported in the head (absent or all zero): the configured noise_std_mps2
+    silent = cov.copy()
+    silent[head] = 0.0
+    silent[head][kind[head] == 'absent', 0] = -1.0
+    fallback = InputPolicy(cfg, options=options)
+    fallback.imu(stamps, accel, None, silent)
+    assert fallback.noise_variance == pytest.approx(cfg.noise_std_mps2 ** 2, rel=1e-12)
+    assert 'noise_std_mps2' in fallback.noise_source
