@@ -20,7 +20,13 @@ from railgsa_ros.health.imu_checks import (
     rate_item,
 )
 from railgsa_ros.health.items import Item, items_json
-from railgsa_ros.health.system_checks import TopicStats, node_item, odom_item, output_item
+from railgsa_ros.health.system_checks import (
+    TopicStats,
+    node_item,
+    odom_item,
+    output_item,
+    output_stats,
+)
 from railgsa_ros.imu import PRESETS, UG, ImuSpec, measure
 
 T0_NS = 1_700_000_000 * 10**9
@@ -192,6 +198,17 @@ def test_odometry_nodes_and_outputs() -> None:
     assert output_item('track/irregularity', TopicStats(2000, 1), 2.0, 1000.0).status == FAIL
     assert output_item('track/irregularity', TopicStats(0, 0), 2.0, 1000.0).status == FAIL
     assert output_item('track/irregularity', TopicStats(900, 0), 2.0, 1000.0).status == WARN
+    assert output_item('track/irregularity', TopicStats(2000, 0, 300), 2.0, 1000.0).status == PASS
+    assert output_item('track/irregularity', TopicStats(2000, 0, 2000), 2.0, 1000.0).status == WARN
+
+
+def test_output_stats_count_only_unflagged_non_finite_values() -> None:
+    nan = np.nan
+    points = np.array([[1.0, 0, 1e-3], [2.0, 1, -1e-3], [3.0, 2, nan],  # valid, degraded, invalid
+                       [4.0, 0, nan], [5.0, 2, 1e-3], [nan, 2, nan], [6.0, 0, np.inf]])
+    assert output_stats(points, quality_in_y=True) == TopicStats(7, 3, 1)
+    bands = np.array([[-1e-3, 0.0, 1e-3], [nan, nan, nan], [nan, 0.0, 1e-3], [0.0, np.inf, 1.0]])
+    assert output_stats(bands, quality_in_y=False) == TopicStats(4, 2, 1)
 
 
 def test_checklist_text_json_and_exit_code(adxl: tuple) -> None:

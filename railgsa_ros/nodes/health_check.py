@@ -28,7 +28,7 @@ from sensor_msgs.msg import Imu
 from railgsa_ros.bag.cdr import Decoded, decode
 from railgsa_ros.bag.messages import FIELDS, LAYOUTS, flatten
 from railgsa_ros.health.checklist import NODE_OUTPUTS, Observation
-from railgsa_ros.health.system_checks import TopicStats
+from railgsa_ros.health.system_checks import output_stats
 from railgsa_ros.nodes.qos import sensor_qos
 
 DEPTH = 5000  #: reader history of every subscription, messages (5 s at 1 kHz)
@@ -84,7 +84,7 @@ class _Collector(Node):
         outputs = {}
         for topic in NODE_OUTPUTS.values():
             values = decode_messages(TYPES[topic], self.raws[topic]).values
-            outputs[topic] = TopicStats(len(values), int(np.sum(~np.isfinite(values).all(1))))
+            outputs[topic] = output_stats(values, TYPES[topic] is PointStamped)
         return Observation(
             duration_s=duration_s, imu_stamps_ns=imu.stamps_ns,
             imu_accel=imu.values[:, _column(Imu, 'linear_acceleration')],
