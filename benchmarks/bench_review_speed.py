@@ -32,9 +32,10 @@ START_NS = 1_700_000_000 * 10**9  # realistic positive stamps (jitter may go bel
 
 def review_once(bag: Path, out: Path, uncertain: bool) -> dict[str, float]:
     """Stage times (s) of one review written to ``out``."""
-    from railgsa_ros.review.build import ReviewOptions, build_review, write_review
+    from railgsa_ros.review.build import build_review, write_review
+    from railgsa_ros.review.results import ReviewOptions
     from railgsa_ros.uncertainty import UncertaintyConfig
-    from railgsa_ros.uq.uncertainty_file import table3
+    from railgsa_ros.uncertainty.parameters import table3
 
     review = build_review(ReviewOptions(bag, UncertaintyConfig(),
                                         dists=table3() if uncertain else None))

@@ -207,7 +207,7 @@ def accuracy(samples: int) -> None:
     from railgsa_ros.inverse.pipeline import InversionPipeline
     from railgsa_ros.scenario import run_scenario
     from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
-    from railgsa_ros.uq.uncertainty_file import table3
+    from railgsa_ros.uncertainty.parameters import table3
     from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
     run = run_scenario('paper', 10.0, 8.0, 1000.0, 'ideal', 0)

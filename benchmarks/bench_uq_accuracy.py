@@ -14,8 +14,8 @@ import warnings
 
 import numpy as np
 
+from railgsa_ros.uncertainty.scenarios import make_scenario
 from railgsa_ros.uq import AliasingWarning, Normal, analyze, monte_carlo_indices
-from railgsa_ros.uq.scenarios import make_scenario
 from railgsa_ros.vehicle import VehicleParams
 
 N_BASE = 4096  # brute force: N_BASE (n + 2) runs

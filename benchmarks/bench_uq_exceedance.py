@@ -30,9 +30,9 @@ from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.coverage import draw_sensor, draw_vehicle
 from railgsa_ros.uncertainty.exceedance import exceedance_probability
+from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.uncertainty.stream import UncertaintyStream, band_statistics
 from railgsa_ros.uq.distributions import Normal
-from railgsa_ros.uq.uncertainty_file import table3
 from railgsa_ros.vehicle import VehicleParams
 
 NOMINAL = VehicleParams()

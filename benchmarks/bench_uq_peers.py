@@ -21,10 +21,10 @@ from SALib.analyze import sobol as salib_sobol
 from SALib.sample import latin
 from SALib.sample import sobol as salib_sample
 
+from railgsa_ros.uncertainty.parameters import table3
+from railgsa_ros.uncertainty.scenarios import make_scenario
 from railgsa_ros.uq import AliasingWarning, Normal, Uniform, analyze
 from railgsa_ros.uq.distributions import isoprobabilistic
-from railgsa_ros.uq.scenarios import make_scenario
-from railgsa_ros.uq.uncertainty_file import table3
 
 TOL = 0.01
 ISHIGAMI = (np.array([0.3139, 0.4424, 0.0]), np.array([0.5576, 0.4424, 0.2437]),

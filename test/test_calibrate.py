@@ -14,8 +14,8 @@ from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import score
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import save_csv
+from railgsa_ros.uncertainty.parameters import load_uncertainty
 from railgsa_ros.uq.distributions import Normal
-from railgsa_ros.uq.uncertainty_file import load_uncertainty
 from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
 NOMINAL = VehicleParams()

@@ -29,8 +29,8 @@ from railgsa_ros.inverse import config as inverse_config
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.uncertainty import config as uncertainty_config
 from railgsa_ros.uncertainty.config import UncertaintyConfig
+from railgsa_ros.uncertainty.parameters import load_uncertainty
 from railgsa_ros.uq.distributions import Distribution
-from railgsa_ros.uq.uncertainty_file import load_uncertainty
 from railgsa_ros.vehicle import PARAM_BOUNDS, PARAM_NAMES, VehicleParams, load_vehicle
 
 FUZZ = settings(max_examples=120, deadline=None, derandomize=True,

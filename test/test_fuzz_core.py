@@ -23,7 +23,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.inverse.sanitize import REASONS, InputSanitizer
 from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream
-from railgsa_ros.uq.uncertainty_file import table3
+from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.vehicle import VehicleParams
 
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True,

@@ -22,15 +22,16 @@ from railgsa_ros.inverse.policy import InputPolicy
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Reference, from_local, to_local
 from railgsa_ros.offline import Source
-from railgsa_ros.review.build import ReviewOptions, build_review
+from railgsa_ros.review.build import build_review
 from railgsa_ros.review.exceedances import find_exceedances
 from railgsa_ros.review.grid import DX_M
 from railgsa_ros.review.limits import en13848_limits
+from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.review.sections import section_sd
 from railgsa_ros.review.stream import run_stream
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import UncertaintyConfig
-from railgsa_ros.uq.uncertainty_file import table3
+from railgsa_ros.uncertainty.parameters import table3
 
 MM = 1e-3
 DEFECTS = 'dip@150:len=6:depth=0.02,dip@300:len=6:depth=0.03,dip@520:len=8:depth=0.04'

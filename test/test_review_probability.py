@@ -11,10 +11,11 @@ import pytest
 from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
-from railgsa_ros.review.build import ReviewOptions, build_review
+from railgsa_ros.review.build import build_review
+from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import UncertaintyConfig
-from railgsa_ros.uq.uncertainty_file import table3
+from railgsa_ros.uncertainty.parameters import table3
 
 SPEED = 30.0  # 108 km/h: AL 8 mm (lower end)
 DEFECTS = 'dip@300:len=6:depth=14e-3,dip@700:len=6:depth=6e-3'

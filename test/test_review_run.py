@@ -14,12 +14,13 @@ import pytest
 from railgsa_ros.bag import read_imu, write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
-from railgsa_ros.review.build import ReviewOptions, build_review, write_review
+from railgsa_ros.review.build import build_review, write_review
 from railgsa_ros.review.grid import GridBuilder
+from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import save_csv
 from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
-from railgsa_ros.uq.uncertainty_file import table3
+from railgsa_ros.uncertainty.parameters import table3
 
 MM = 1e-3
 SPEED = 20.0  # m/s = 72 km/h: class v <= 80 km/h, lower end AL 12, IL 17, IAL 28 mm

@@ -18,13 +18,13 @@ from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import Band, UncertaintyConfig, UncertaintyStream, offline_bands
 from railgsa_ros.uncertainty.config import load_config
+from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.uncertainty.stream import band_statistics, order_statistics
 from railgsa_ros.uncertainty.surrogate import build_design
 from railgsa_ros.uncertainty.windows import WindowAnalyzer
 from railgsa_ros.uq import analyze
 from railgsa_ros.uq.germ import sobol
 from railgsa_ros.uq.pce import PCE
-from railgsa_ros.uq.uncertainty_file import table3
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
 REPO = Path(__file__).resolve().parents[1]

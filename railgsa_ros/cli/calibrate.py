@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.inverse.pipeline import vertical
     from railgsa_ros.track import load_csv
-    from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
+    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
     from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, load_vehicle
 
     names = tuple(n.strip() for n in args.parameters.split(',') if n.strip())

@@ -42,9 +42,9 @@ def run(args: argparse.Namespace) -> int:
 
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.fileio import atomic_output, refuse_overlap, writable_dir
+    from railgsa_ros.uncertainty.parameters import load_uncertainty
+    from railgsa_ros.uncertainty.scenarios import make_scenario
     from railgsa_ros.uq import AliasingWarning, analyze, validate
-    from railgsa_ros.uq.scenarios import make_scenario
-    from railgsa_ros.uq.uncertainty_file import load_uncertainty
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     if args.order < 1:
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
     dists = load_uncertainty(args.uncertainty) if args.uncertainty else None
     if dists is None:
-        from railgsa_ros.uq.uncertainty_file import table3
+        from railgsa_ros.uncertainty.parameters import table3
         dists = table3(vehicle)
     scenario = make_scenario(args.scenario, args.time, dists, args.profile, args.speed, vehicle,
                              args.gain, seed=args.seed)

@@ -188,7 +188,7 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> object:
     from railgsa_ros.inverse.grid import grid_config
     from railgsa_ros.offline import Driver
     from railgsa_ros.uncertainty import UncertaintyConfig
-    from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
+    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
 
     base = UncertaintyConfig()
     if args.uncertainty_params:  # the inversion comes from --params (equal to the node's)

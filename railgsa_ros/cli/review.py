@@ -122,9 +122,9 @@ def build_options(args: argparse.Namespace) -> Any:
     from dataclasses import fields
 
     from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.review.build import ReviewOptions
+    from railgsa_ros.review.results import ReviewOptions
     from railgsa_ros.uncertainty import UncertaintyConfig
-    from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
+    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     params = parameters(args)

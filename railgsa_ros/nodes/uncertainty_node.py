@@ -68,7 +68,7 @@ from railgsa_ros.nodes.specs import (
     vehicle_values,
 )
 from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream, Update
-from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
+from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
 from railgsa_ros.vehicle import VehicleParams
 
 NODE_NAME = 'uncertainty_node'

@@ -15,14 +15,12 @@ from datetime import UTC, datetime
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from railgsa_ros.review.exceedances import describe_counts
-
-if TYPE_CHECKING:
-    from railgsa_ros.review.build import Review
+from railgsa_ros.review.results import Review
 
 DEFECTS_CSV = 'defects.csv'
 DEFECTS_GEOJSON = 'defects.geojson'

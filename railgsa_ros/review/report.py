@@ -8,16 +8,13 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from html import escape
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from railgsa_ros import __version__
 from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level, describe_counts
 from railgsa_ros.review.limits import CLASS_UPPER_KMH, LEVELS, SOURCE, class_label
-
-if TYPE_CHECKING:
-    from railgsa_ros.review.build import Review
+from railgsa_ros.review.results import Review
 
 MM = 1e3
 MAX_ROWS = 200  # rows of the exceedance and section tables

@@ -28,11 +28,11 @@ from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.uncertainty.config import UncertaintyConfig
+from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.uncertainty.surrogate import Design, build_design
 from railgsa_ros.uncertainty.terms import SensorTerms
 from railgsa_ros.uncertainty.windows import Sensitivity, WindowAnalyzer
 from railgsa_ros.uq.distributions import Distribution
-from railgsa_ros.uq.uncertainty_file import table3
 from railgsa_ros.vehicle import VehicleParams
 
 BLOCK = 256  # samples per quantile block: 2 MB at 1024 germ samples (cache-sized, 10 % faster)

@@ -9,9 +9,9 @@ from railgsa_ros.cli.main import main
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.simulate import simulate
 from railgsa_ros.track import paper_profile
+from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
+from railgsa_ros.uncertainty.scenarios import make_scenario, sample_indices
 from railgsa_ros.uq import Normal, analyze
-from railgsa_ros.uq.scenarios import make_scenario, sample_indices
-from railgsa_ros.uq.uncertainty_file import load_uncertainty, table3
 from railgsa_ros.vehicle import VehicleParams
 
 
