@@ -23,7 +23,8 @@ import time
 
 import numpy as np
 
-from railgsa_ros.bag.messages import qos, typestore
+from railgsa_ros.bag.messages import typestore
+from railgsa_ros.qos import record_qos
 from railgsa_ros.system import isolated_domain
 
 NS = 1_000_000_000
@@ -41,7 +42,7 @@ def write_bag(path: Path, seconds: float) -> np.ndarray:
     stamps = T0 + np.arange(round(seconds * 1000), dtype=np.int64) * 1_000_000
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conn = writer.add_connection('/imu/data', imu.__msgtype__, typestore=ts,
-                                     offered_qos_profiles=[qos(False, 5)])
+                                     offered_qos_profiles=[record_qos(False, 5)])
         for i, t in enumerate(stamps.tolist()):
             msg = imu(header(stamp(*divmod(t, NS)), 'imu_link'), quat(0.0, 0.0, 0.0, 1.0),
                       np.zeros(9), vec(0.0, 0.0, 0.0), np.zeros(9), vec(0.0, 0.0, 9.81 + i),

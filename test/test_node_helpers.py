@@ -118,12 +118,32 @@ def test_declare_and_merged(ros_context: Any) -> None:
 def test_qos_profiles() -> None:
     from rclpy.qos import ReliabilityPolicy
 
-    from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, output_qos, sensor_qos
+    from railgsa_ros.nodes.qos import output_qos, sensor_qos
+    from railgsa_ros.qos import MIN_SENSOR_DEPTH
 
     assert sensor_qos().reliability == ReliabilityPolicy.BEST_EFFORT
     assert sensor_qos().depth >= MIN_SENSOR_DEPTH >= 300
     assert sensor_qos(500, 'reliable').reliability == ReliabilityPolicy.RELIABLE
     assert output_qos().reliability == ReliabilityPolicy.RELIABLE and output_qos(7).depth == 7
+
+
+@pytest.mark.ros
+def test_recording_subscribes_with_what_every_publisher_offers() -> None:
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from railgsa_ros.nodes.qos import bag_record, from_rclpy, to_rclpy
+    from railgsa_ros.qos import Profile, recording
+
+    latched = QoSProfile(depth=3, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    lossy = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+    assert from_rclpy(latched) == Profile(True, 3, True)
+    assert from_rclpy(to_rclpy(Profile(False, 9, True))) == Profile(False, 9, True)
+    assert recording([from_rclpy(latched)], 100) == Profile(True, 100, True)
+    assert recording([from_rclpy(latched), from_rclpy(lossy)], 100) == Profile(False, 100, False)
+    record = bag_record(latched)
+    assert (record.depth, record.reliability.value, record.durability.value) == (
+        3, int(ReliabilityPolicy.RELIABLE), int(DurabilityPolicy.TRANSIENT_LOCAL))
 
 
 @pytest.mark.ros

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from railgsa_ros.bag import BagWriter, RunEncoder, read_imu, write_run
-from railgsa_ros.bag.messages import qos
 from railgsa_ros.bag.reader import NAV_SAT_FIX, iter_imu
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.pipeline import Output
@@ -22,6 +21,7 @@ from railgsa_ros.inverse.policy import InputPolicy
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Reference, from_local, to_local
 from railgsa_ros.offline import Source
+from railgsa_ros.qos import record_qos
 from railgsa_ros.review.build import build_review
 from railgsa_ros.review.exceedances import find_exceedances
 from railgsa_ros.review.grid import DX_M
@@ -193,7 +193,7 @@ def _gnss_bag(path: Path, run: object, scale_error: float, sigma_m: float, rate_
         topics = encoder.topics()
         for key in ('imu', 'odom', 'truth'):
             writer.add_topic(*topics[key])
-        writer.add_topic('/gnss/fix', NAV_SAT_FIX, qos(True, 10))
+        writer.add_topic('/gnss/fix', NAV_SAT_FIX, record_qos(True, 10))
         batches = encoder.encode()
         raws = [bytes(store.serialize_cdr(fix_t(
             header_t(time_t(int(t // 10**9), int(t % 10**9)), 'gnss'),

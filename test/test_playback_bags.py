@@ -24,10 +24,11 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from rosbags.rosbag2.metadata import dump_qos_v9
 import yaml
 
-from railgsa_ros.bag.messages import qos, typestore
+from railgsa_ros.bag.messages import typestore
 from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec, message_definition
 from railgsa_ros.playback.source import BagSource
+from railgsa_ros.qos import record_qos
 
 IMU = 'sensor_msgs/msg/Imu'
 T0 = 1_700_000_000 * 10**9
@@ -75,11 +76,12 @@ def write_rosbags(path: Path, n: int, storage: str = 'mcap', compress: bool = Fa
         written += [(topic, T0 + j * 10 * PERIOD + 1, raw) for j, raw in enumerate(raws)]
     written.sort(key=lambda w: w[1])
     with writer:
+        offered = [record_qos(reliable, 5)]
         conns = {'/imu/data': writer.add_connection('/imu/data', IMU, typestore=typestore(),
-                                                    offered_qos_profiles=[qos(reliable, 5)])}
+                                                    offered_qos_profiles=offered)}
         for topic, (msgtype, _) in (extra or {}).items():
             conns[topic] = writer.add_connection(topic, msgtype, typestore=typestore(),
-                                                 offered_qos_profiles=[qos(True, 10)])
+                                                 offered_qos_profiles=[record_qos(True, 10)])
         for topic, stamp, raw in written:
             writer.write(conns[topic], stamp, raw)
     return written
@@ -106,7 +108,7 @@ def write_mcap_lz4(path: Path, n: int) -> list[tuple[str, int, bytes]]:
         writer.start(profile='ros2', library='test')
         schema = writer.register_schema(IMU, 'ros2msg', message_definition(IMU).encode())
         channel = writer.register_channel('/imu/data', 'cdr', schema, {
-            'offered_qos_profiles': yaml.safe_dump(dump_qos_v9([qos(True, 7)]))})
+            'offered_qos_profiles': yaml.safe_dump(dump_qos_v9([record_qos(True, 7)]))})
         for i, raw in enumerate(raws):
             writer.add_message(channel, T0 + i * PERIOD, raw, T0 + i * PERIOD)
         writer.finish()
@@ -160,7 +162,7 @@ def test_recorded_qos_is_exposed(tmp_path: Path) -> None:
 def test_several_files_with_and_without_metadata(tmp_path: Path) -> None:
     bag = tmp_path / 'split'
     recorder = BagRecorder(bag, split_s=0.1)
-    recorder.add_topic(TopicSpec('/imu/data', IMU, [qos(False, 5)]))
+    recorder.add_topic(TopicSpec('/imu/data', IMU, [record_qos(False, 5)]))
     raws = [imu_cdr(i) for i in range(500)]
     for i, raw in enumerate(raws):
         recorder.write('/imu/data', T0 + i * PERIOD, raw)
@@ -233,7 +235,7 @@ def test_recording_opens_with_rosbags_and_mcap(tmp_path: Path) -> None:
     bag = tmp_path / 'rec'
     recorder = BagRecorder(bag, split_s=0.25)
     digest = typestore().hash_rihs01(IMU)
-    recorder.add_topic(TopicSpec('/imu/data', IMU, [qos(False, 5)], digest))
+    recorder.add_topic(TopicSpec('/imu/data', IMU, [record_qos(False, 5)], digest))
     raws = [imu_cdr(i) for i in range(600)]
     for i, raw in enumerate(raws):
         recorder.write('/imu/data', T0 + i * PERIOD, raw)
@@ -256,7 +258,7 @@ def test_recording_opens_with_rosbags_and_mcap(tmp_path: Path) -> None:
     assert meta['message_count'] == 600 and meta['relative_file_paths'] == [p.name for p in files]
     with AnyReader([bag], default_typestore=typestore()) as reader:
         (conn,) = reader.connections
-        assert conn.ext.offered_qos_profiles == [qos(False, 5)]
+        assert conn.ext.offered_qos_profiles == [record_qos(False, 5)]
         assert conn.digest == digest
         values = [reader.deserialize(raw, IMU).linear_acceleration.z
                   for _, _, raw in reader.messages()]

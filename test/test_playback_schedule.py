@@ -12,10 +12,8 @@ import math
 import pytest
 from rosbags.interfaces import QosDurability, QosReliability
 
-from railgsa_ros.bag.messages import qos
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.playback.pacing import Pacer
-from railgsa_ros.playback.qos import choose_qos
 from railgsa_ros.playback.schedule import (
     ClockTick,
     Message,
@@ -26,6 +24,7 @@ from railgsa_ros.playback.schedule import (
     window,
 )
 from railgsa_ros.playback.source import TopicInfo
+from railgsa_ros.qos import record_qos, replay
 
 MS = 1_000_000
 LO = 5_000 * MS
@@ -162,23 +161,24 @@ def test_pacer_waits_in_slices_and_records_lateness() -> None:
 def test_qos_from_recording_or_type() -> None:
     imu = TopicInfo('/imu/data', 'sensor_msgs/msg/Imu', 1001, [], 0, 1000 * MS)
     odom = TopicInfo('/odom', 'nav_msgs/msg/Odometry', 51, [], 0, 1000 * MS)
-    choice = choose_qos(imu, 1.0)
+    choice = replay(imu, 1.0)
     assert (choice.reliable, choice.depth, choice.transient_local) == (False, 1000, False)
-    assert choose_qos(imu, 5.0).depth == 5000
-    assert (choose_qos(odom, 1.0).reliable, choose_qos(odom, 1.0).depth) == (True, 50)
-    imu.offered_qos = [qos(True, 5)]
-    assert choose_qos(imu, 1.0).reliable
-    imu.offered_qos.append(qos(False, 2000))
-    assert (choose_qos(imu, 1.0).reliable, choose_qos(imu, 1.0).depth) == (False, 2000)
-    latched = qos(True, 1)._replace(durability=QosDurability.TRANSIENT_LOCAL)
-    odom.offered_qos = [latched, qos(False, 1)._replace(reliability=QosReliability.UNKNOWN)]
-    assert choose_qos(odom, 1.0).transient_local and choose_qos(odom, 1.0).reliable
+    assert replay(imu, 5.0).depth == 5000
+    assert (replay(odom, 1.0).reliable, replay(odom, 1.0).depth) == (True, 50)
+    imu.offered_qos = [record_qos(True, 5)]
+    assert replay(imu, 1.0).reliable
+    imu.offered_qos.append(record_qos(False, 2000))
+    assert (replay(imu, 1.0).reliable, replay(imu, 1.0).depth) == (False, 2000)
+    latched = record_qos(True, 1)._replace(durability=QosDurability.TRANSIENT_LOCAL)
+    odom.offered_qos = [latched, record_qos(False, 1)._replace(reliability=QosReliability.UNKNOWN)]
+    assert replay(odom, 1.0).transient_local and replay(odom, 1.0).reliable
 
 
 def test_reliable_override_keeps_ten_seconds_or_the_whole_topic() -> None:
-    imu = TopicInfo('/imu/data', 'sensor_msgs/msg/Imu', 20_001, [qos(False, 5)], 0, 20_000 * MS)
-    assert (choose_qos(imu, 5.0, reliable=True).reliable,
-            choose_qos(imu, 5.0, reliable=True).depth) == (True, 20_001)  # the whole topic
-    assert choose_qos(imu, 1.0, reliable=True).depth == 10_000  # 10 s at 1 kHz
+    imu = TopicInfo('/imu/data', 'sensor_msgs/msg/Imu', 20_001, [record_qos(False, 5)], 0,
+                    20_000 * MS)
+    assert (replay(imu, 5.0, reliable=True).reliable,
+            replay(imu, 5.0, reliable=True).depth) == (True, 20_001)  # the whole topic
+    assert replay(imu, 1.0, reliable=True).depth == 10_000  # 10 s at 1 kHz
     odom = TopicInfo('/odom', 'nav_msgs/msg/Odometry', 3, [], 0, 20_000 * MS)
-    assert choose_qos(odom, 1.0, reliable=True).depth == 10  # never below the usual minimum
+    assert replay(odom, 1.0, reliable=True).depth == 10  # never below the usual minimum

@@ -1,4 +1,4 @@
-"""Standard ROS 2 messages as arrays: layouts, REP 145 conventions, QoS and the Jazzy typestore.
+"""Standard ROS 2 messages as arrays: layouts, REP 145 conventions and the Jazzy typestore.
 
 Sign and frame conventions (REP 103/145): ``imu_link`` z up, specific force including gravity in
 m/s^2; no orientation or gyro data -> orientation (0, 0, 0, 1) and covariance[0] = -1 for those
@@ -9,18 +9,9 @@ unknown.
 from __future__ import annotations
 
 from functools import lru_cache
-import math
 from typing import Any
 
 import numpy as np
-from rosbags.interfaces import (
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
 from rosbags.typesys import Stores, get_typestore
 
 from railgsa_ros.bag.cdr import StampedLayout
@@ -44,25 +35,10 @@ FIELDS = {IMU.msgtype: IMU_FIELDS, ODOMETRY.msgtype: ODOMETRY_FIELDS,
           VECTOR3_STAMPED.msgtype: {'vector': slice(0, 3)}}
 STRING_FIELDS = {ODOMETRY.msgtype: ('header.frame_id', 'child_frame_id')}
 
-_QOS_ZERO = QosTime(0, 0)
-
-
 @lru_cache(maxsize=1)
 def typestore() -> Any:
     """The rosbags type store of ROS 2 Jazzy (cached)."""
     return get_typestore(Stores.ROS2_JAZZY)
-
-
-def history_depth(rate_hz: float, window_s: float = 1.0) -> int:
-    """KEEP_LAST depth holding ``window_s`` of messages at ``rate_hz`` (>= 10): 1000 at 1 kHz."""
-    return max(10, math.ceil(rate_hz * window_s))
-
-
-def qos(reliable: bool, depth: int) -> Qos:
-    """A rosbag2 offered-QoS record: KEEP_LAST ``depth``, VOLATILE, RELIABLE or BEST_EFFORT."""
-    reliability = QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT
-    return Qos(QosHistory.KEEP_LAST, int(depth), reliability, QosDurability.VOLATILE,
-               _QOS_ZERO, _QOS_ZERO, QosLiveliness.AUTOMATIC, _QOS_ZERO, False)
 
 
 def imu_values(accel: np.ndarray, accel_variance: float) -> np.ndarray:

@@ -13,14 +13,13 @@ from railgsa_ros.bag.messages import (
     IMU,
     ODOMETRY,
     POINT_STAMPED,
-    history_depth,
     imu_values,
     odometry_values,
-    qos,
     typestore,
 )
 from railgsa_ros.bag.reader import TopicSummary
 from railgsa_ros.bag.writer import BagWriter, Batch
+from railgsa_ros.qos import history_depth, record_qos
 from railgsa_ros.ticks import TickSampler
 
 IMU_TOPIC = '/imu/data'
@@ -99,10 +98,11 @@ class RunEncoder:
         """key -> (bag topic, message type, offered QoS): BEST_EFFORT for the IMU (sensor data,
         depth for 1 s), RELIABLE for odometry and truth."""
         return {
-            'imu': (IMU_TOPIC, IMU.msgtype, qos(False, history_depth(self.imu_rate_hz))),
-            'odom': (ODOM_TOPIC, ODOMETRY.msgtype, qos(True, history_depth(self.odom_rate_hz))),
+            'imu': (IMU_TOPIC, IMU.msgtype, record_qos(False, history_depth(self.imu_rate_hz))),
+            'odom': (ODOM_TOPIC, ODOMETRY.msgtype,
+                     record_qos(True, history_depth(self.odom_rate_hz))),
             'truth': (TRUTH_TOPIC, POINT_STAMPED.msgtype,
-                      qos(True, history_depth(self.imu_rate_hz))),
+                      record_qos(True, history_depth(self.imu_rate_hz))),
         }
 
 
@@ -169,7 +169,7 @@ def write_run_chunks(path: str | Path, chunks: Iterable[Any], storage: str = 'mc
                 topics = encoder.topics()
                 if gnss is not None:
                     topics['gnss'] = (GNSS_TOPIC, NAVSATFIX,
-                                      qos(True, history_depth(gnss.spec.rate_hz)))
+                                      record_qos(True, history_depth(gnss.spec.rate_hz)))
                 for topic, msgtype, offered in topics.values():
                     bag.add_topic(topic, msgtype, offered)
             for start in range(0, len(encoder), WRITE_CHUNK):

@@ -12,9 +12,10 @@ import numpy as np
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
-from railgsa_ros.bag.messages import qos, typestore
+from railgsa_ros.bag.messages import typestore
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.fileio import atomic_output
+from railgsa_ros.qos import record_qos
 
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
@@ -70,7 +71,7 @@ class BagWriter:
             raise ConfigError(f'{self.path}: topic {topic} added twice')
         self._connections[topic] = self._writer.add_connection(
             topic, msgtype, typestore=typestore(),
-            offered_qos_profiles=[offered_qos or qos(True, 10)])
+            offered_qos_profiles=[offered_qos or record_qos(True, 10)])
 
     def write(self, topic: str, log_time_ns: int, msg: Any) -> None:
         """Write one message: serialised CDR bytes or a rosbags message object."""

@@ -248,12 +248,13 @@ class BagBatches:
     with a band ``/track/irregularity_band`` (Vector3Stamped: x lower, y mean, z upper)."""
 
     def __init__(self, bag: object, band: bool, topic: str) -> None:
-        from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED, history_depth, qos
+        from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED
+        from railgsa_ros.qos import history_depth, record_qos
 
         self.bag, self.topic = bag, topic
         self.topics = {topic: POINT_STAMPED, **({BAND_TOPIC: VECTOR3_STAMPED} if band else {})}
         for name, layout in self.topics.items():
-            bag.add_topic(name, layout.msgtype, qos(True, history_depth(1000.0)))
+            bag.add_topic(name, layout.msgtype, record_qos(True, history_depth(1000.0)))
 
     def write(self, stamps_ns: np.ndarray, chainage_m: np.ndarray, u_m: np.ndarray,
               quality: np.ndarray, band: object | None = None) -> None:

@@ -6,7 +6,7 @@ array, empty = all), ``remaps`` (string array of ``FROM:=TO``), ``clock_hz`` (pu
 rosgraph_msgs/Clock on /clock at this wall-clock rate, 0 = off), ``wait_for_subscribers`` (s to
 wait for every topic to be subscribed before playing, 0 = start at once), ``min_subscribers``
 (the number of subscribers each topic waits for) and ``reliable`` (publish
-every topic RELIABLE with a deep history, playback.qos.choose_qos, and wait up to ACK_TIMEOUT_S at
+every topic RELIABLE with a deep history, railgsa_ros.qos.replay, and wait up to ACK_TIMEOUT_S at
 the end until every subscriber acknowledged every message, as ``ros2 bag play
 --wait-for-all-acked``: a writer that is gone resends nothing). Topics whose type this
 ROS installation cannot import are skipped with a warning. Malformed messages (empty, truncated:
@@ -33,15 +33,15 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
+from railgsa_ros import qos
 from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.nodes import console_main, parameter_overrides
 from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes.qos import to_rclpy
 from railgsa_ros.playback.pacing import Pacer
-from railgsa_ros.playback.qos import QosChoice, choose_qos
 from railgsa_ros.playback.schedule import (
     NS,
     ClockTick,
@@ -77,8 +77,6 @@ ARRAYS = {'topics': 'topics to play (empty = all)', 'remaps': 'topic remaps FROM
 #: Longest wait (s) at the end of a reliable replay for the subscribers' acknowledgements.
 ACK_TIMEOUT_S = 60.0
 ACK_SLICE_S = 0.1  #: s per acknowledgement check, so that stop() ends the wait soon
-#: /clock QoS, as ros2 bag play: RELIABLE, KEEP_LAST 1 (use_sim_time subscribers are BEST_EFFORT).
-CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def message_class(msgtype: str) -> Any | None:
@@ -101,16 +99,6 @@ def final_note(node: Node, text: str) -> None:
         node.get_logger().info(text)
     else:
         print(f'[{node.get_name()}] {text}', file=sys.stderr)
-
-
-def qos_profile(choice: QosChoice) -> QoSProfile:
-    """The rclpy profile of a QosChoice."""
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=choice.depth,
-        reliability=ReliabilityPolicy.RELIABLE if choice.reliable
-        else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if choice.transient_local
-        else DurabilityPolicy.VOLATILE)
 
 
 class BagReplayNode(Node):
@@ -156,11 +144,11 @@ class BagReplayNode(Node):
                 continue
             out = remap.get(name, name)
             self.publishers_by_topic[out] = self.create_publisher(
-                cls, out, qos_profile(choose_qos(info, self.options.rate, self.reliable)))
+                cls, out, to_rclpy(qos.replay(info, self.options.rate, self.reliable)))
             self.topics.append(name)
         if not self.topics:
             raise InputError(f'{self.source.path}: no playable topic (types not available)')
-        self.clock_pub = (self.create_publisher(Clock, '/clock', CLOCK_QOS)
+        self.clock_pub = (self.create_publisher(Clock, '/clock', to_rclpy(qos.CLOCK))
                           if self.options.clock_hz > 0 else None)
         self.window = window(self.source.start_ns, self.source.end_ns, self.options)
 

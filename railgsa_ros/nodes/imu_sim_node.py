@@ -27,13 +27,13 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
 from railgsa_ros.bag import RunEncoder
-from railgsa_ros.bag.messages import history_depth
 from railgsa_ros.errors import RailGsaError
 from railgsa_ros.imu import PRESETS
 from railgsa_ros.nodes import console_main
 from railgsa_ros.nodes.diagnostics import OK, WARN, DiagnosticsPublisher, Report
 from railgsa_ros.nodes.params import ParamSpec, declare
-from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, output_qos, sensor_qos
+from railgsa_ros.nodes.qos import output_qos, sensor_qos
+from railgsa_ros.qos import MIN_SENSOR_DEPTH, history_depth
 from railgsa_ros.scenario import run_scenario
 
 NODE_NAME = 'imu_sim'

@@ -1,42 +1,59 @@
-"""QoS profiles shared by the railgsa nodes.
-
-Measured in rclpy (docs/nodes.md): a 1 kHz IMU stream through a reader history of depth 5 (the
-stock sensor-data profile) loses 2-8 % of the samples whenever the executor stalls, so inputs use
-a depth of at least 300 (default 1000, one second at 1 kHz). BEST_EFFORT subscriptions match both
-BEST_EFFORT and RELIABLE publishers; RELIABLE outputs serve both kinds of subscriber. An input may
-be RELIABLE instead (a replay faster than real time): a sample the process cannot take in time is
-then resent instead of dropped in the transport, but only a RELIABLE publisher matches it.
-"""
+"""The rclpy side of the package's QoS: ``railgsa_ros.qos`` decides, this module converts."""
 
 from __future__ import annotations
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from typing import Any
 
-#: Reader history for 1 kHz inputs, in samples (one second).
-SENSOR_DEPTH = 1000
-#: Writer history for per-sample outputs, in samples (one second at 1 kHz).
-OUTPUT_DEPTH = 1000
-#: Minimum history depth accepted for a 1 kHz input.
-MIN_SENSOR_DEPTH = 300
-#: Values of the nodes' input reliability parameters, the live-sensor choice first.
-RELIABILITIES = ('best_effort', 'reliable')
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+
+from railgsa_ros import qos
+from railgsa_ros.qos import OUTPUT_DEPTH, SENSOR_DEPTH, Profile
+
+
+def to_rclpy(profile: Profile) -> QoSProfile:
+    """The rclpy profile: KEEP_LAST depth, the reliability and durability of ``profile``."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=profile.depth,
+        reliability=ReliabilityPolicy.RELIABLE if profile.reliable
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if profile.transient_local
+        else DurabilityPolicy.VOLATILE)
+
+
+def from_rclpy(profile: QoSProfile) -> Profile:
+    """The decision-relevant part of an rclpy profile (a publisher's offered QoS)."""
+    return Profile(profile.reliability == ReliabilityPolicy.RELIABLE, profile.depth,
+                   profile.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def bag_record(profile: QoSProfile) -> Qos:
+    """An rclpy profile as a rosbags Qos record, every field kept (the enums share values)."""
+    def span(duration: Any) -> QosTime:
+        return QosTime(*divmod(duration.nanoseconds, 1_000_000_000))
+    return Qos(QosHistory(int(profile.history)), profile.depth,
+               QosReliability(int(profile.reliability)), QosDurability(int(profile.durability)),
+               span(profile.deadline), span(profile.lifespan),
+               QosLiveliness(int(profile.liveliness)), span(profile.liveliness_lease_duration),
+               profile.avoid_ros_namespace_conventions)
 
 
 def sensor_qos(depth: int = SENSOR_DEPTH, reliability: str = 'best_effort') -> QoSProfile:
-    """KEEP_LAST ``depth``, VOLATILE, BEST_EFFORT (or RELIABLE with ``reliability`` 'reliable'):
-    for high-rate sensor inputs (imu, odom)."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE if reliability == 'reliable'
-                      else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.VOLATILE)
+    """``qos.sensor`` in rclpy: for high-rate sensor inputs (imu, odom)."""
+    return to_rclpy(qos.sensor(depth, reliability))
 
 
 def output_qos(depth: int = OUTPUT_DEPTH) -> QoSProfile:
-    """RELIABLE, KEEP_LAST ``depth``, VOLATILE: for the per-sample outputs."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+    """``qos.output`` in rclpy: for the per-sample outputs."""
+    return to_rclpy(qos.output(depth))
 
 
-#: /diagnostics: RELIABLE, depth 10 (one array a second).
-DIAGNOSTICS_QOS = output_qos(10)
+#: /diagnostics: ``qos.DIAGNOSTICS``.
+DIAGNOSTICS_QOS = to_rclpy(qos.DIAGNOSTICS)

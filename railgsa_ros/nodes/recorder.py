@@ -27,21 +27,13 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rosbags.interfaces import (
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
 
+from railgsa_ros import qos
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.nodes import console_main, parameter_overrides
 from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class
 from railgsa_ros.nodes.params import ParamSpec, declare
-from railgsa_ros.nodes.qos import output_qos, sensor_qos
+from railgsa_ros.nodes.qos import bag_record, from_rclpy, to_rclpy
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
 from railgsa_ros.playback.schedule import absolute
 from railgsa_ros.playback.signals import stop_on_signals
@@ -61,27 +53,6 @@ SPECS = (
 #: Period (s) of the topic discovery and of the flush/split check.
 DISCOVERY_S = 0.1
 FLUSH_S = 1.0
-
-
-def bag_qos(profile: QoSProfile) -> Qos:
-    """An rclpy profile as a rosbags Qos record (the enums share their values)."""
-    def span(duration: Any) -> QosTime:
-        return QosTime(*divmod(duration.nanoseconds, 1_000_000_000))
-    return Qos(QosHistory(int(profile.history)), profile.depth,
-               QosReliability(int(profile.reliability)), QosDurability(int(profile.durability)),
-               span(profile.deadline), span(profile.lifespan),
-               QosLiveliness(int(profile.liveliness)), span(profile.liveliness_lease_duration),
-               profile.avoid_ros_namespace_conventions)
-
-
-def subscription_qos(offered: list[QoSProfile], depth: int = DEPTH) -> QoSProfile:
-    """KEEP_LAST ``depth``; RELIABLE only if every publisher is; TRANSIENT_LOCAL only if every
-    publisher is."""
-    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
-    profile = output_qos(depth) if reliable else sensor_qos(depth)
-    if all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered):
-        profile.durability = DurabilityPolicy.TRANSIENT_LOCAL
-    return profile
 
 
 class RecorderNode(Node):
@@ -124,11 +95,12 @@ class RecorderNode(Node):
                 continue
             offered = [i.qos_profile for i in infos if i.topic_type == msgtype]
             type_hash = str(getattr(infos[0], 'topic_type_hash', '') or '')
-            self.bag.add_topic(TopicSpec(topic, msgtype, [bag_qos(p) for p in offered],
+            self.bag.add_topic(TopicSpec(topic, msgtype, [bag_record(p) for p in offered],
                                          type_hash if type_hash.startswith('RIHS') else ''))
+            reader = qos.recording([from_rclpy(p) for p in offered], self.depth)
             self._subs.append((self.create_subscription(
-                cls, topic, partial(self._on_message, topic),
-                subscription_qos(offered, self.depth), raw=True), topic, cls))
+                cls, topic, partial(self._on_message, topic), to_rclpy(reader), raw=True),
+                topic, cls))
             self.get_logger().info(f'recording {topic} ({msgtype})')
 
     def _on_message(self, topic: str, data: bytes) -> None:

@@ -17,7 +17,7 @@ from typing import Any
 
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.nodes.params import ParamSpec
-from railgsa_ros.nodes.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
+from railgsa_ros.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.vehicle import (
     PARAM_BOUNDS,

@@ -1,2 +1,2 @@
-"""Bag replay and recording core (no ROS): opening bags, selection, remapping, pacing, QoS and
+"""Bag replay and recording core (no ROS): opening bags, selection, remapping, pacing and
 the split MCAP writer used by the recorder node."""
