@@ -7,8 +7,9 @@ thread each, 127.0.0.1). Printed per run: the cluster's start-up (timed apart: p
 batch), wall time, speed-up against the 1-worker run of the same invocation, CPU seconds in the
 workers (``PassResult.cpu_s``: reading, inversion, gridding) and in the client (alignment,
 DuckDB writes, fusion and trends: this process's CPU time), real-time factor, CPU seconds
-per hour of 1 kHz data (bag-hour) and the largest worker's peak resident memory. The machine
-is shared: the load average is printed next to the numbers.
+per hour of 1 kHz data (bag-hour), the largest worker's peak resident memory and the load
+average when the run ended. The machine is shared: the load average is printed next to the
+numbers, and a speed-up measured under load is not the idle machine's.
 
 Usage: python benchmarks/bench_fleet.py [--bags 8] [--minutes 10] [--workers 1 2]
 """
@@ -86,7 +87,7 @@ def main() -> None:
               f'{" ".join(f"{x:.1f}" for x in os.getloadavg())}')
         print(f'{"workers":>7} {"start s":>7} {"wall s":>7} {"speed-up":>8} {"worker CPU s":>12} '
               f'{"client CPU s":>12} {"x real time":>11} {"CPU s / bag-hour":>16} '
-              f'{"worker peak RSS MB":>18}')
+              f'{"worker peak RSS MB":>18} {"load 1/5/15 min":>15}')
         base = None
         for n in args.workers:
             r = measure(bags, n, folder)
@@ -94,7 +95,8 @@ def main() -> None:
             hours = r['data'] / 3600
             print(f'{n:>7} {r["startup"]:>7.1f} {r["wall"]:>7.1f} {base / r["wall"]:>8.2f} '
                   f'{r["workers"]:>12.1f} {r["client"]:>12.1f} {r["data"] / r["wall"]:>11.0f} '
-                  f'{(r["workers"] + r["client"]) / hours:>16.1f} {r["rss_mb"]:>18.0f}')
+                  f'{(r["workers"] + r["client"]) / hours:>16.1f} {r["rss_mb"]:>18.0f} '
+                  f'{" ".join(f"{x:.1f}" for x in os.getloadavg()):>15}')
         print(f'load average after: {" ".join(f"{x:.1f}" for x in os.getloadavg())}')
     finally:
         shutil.rmtree(folder, ignore_errors=True)

@@ -69,7 +69,7 @@ def parse_growing_defects(spec: str, n_passes: int) -> list[GrowingDefect]:
     """Defects spec of ``track.parse_defects`` with three more keys per token:
     ``growth=M_PER_DAY`` (depth or amplitude growth, linear in the date), ``depths=A/B/...``
     (one size in m per pass, instead of growth) and ``from=K`` (appears from pass K on,
-    1-based). E.g. ``dip@600:len=8:depth=3e-3:growth=4e-5,dip@1400:len=6:depth=4e-3:from=3``.
+    1-based). E.g. ``dip@600:len=8:depth=7e-3:growth=4e-5,dip@1400:len=6:depth=7e-3:from=3``.
     """
     out = []
     for token in (spec or '').split(','):

@@ -4,7 +4,8 @@ Five passes over the same 2.5 km German-low line, 30 days apart, at 23-30 m/s an
 different start positions, with different vehicles (parameters within a few %) and odometry
 scale errors of a few tenths of a percent; a dip that deepens by 0.04 mm/day and a second one
 that appears from the fourth pass on; plus one corrupt bag. Ingested by ``railgsa fleet ingest``
-on a 2-worker LocalCluster (127.0.0.1).
+on a 2-worker LocalCluster (127.0.0.1) that the test starts and passes by ``--scheduler``
+(``test_fleet_workflow.py`` runs the built-in one).
 """
 
 from __future__ import annotations
@@ -81,12 +82,20 @@ def series(tmp_path_factory):
 
 @pytest.fixture(scope='module')
 def ingested(series, tmp_path_factory):
+    """The batch ingested with ``--scheduler`` on a 2-worker LocalCluster (127.0.0.1) that the
+    test starts: exit code, database path, and whether the passes ran on that cluster."""
+    from dask.distributed import LocalCluster
+
     path = tmp_path_factory.mktemp('db') / 'fleet.duckdb'
     bags = [str(b) for b in series.bags[:2]] + [str(series.broken)] + \
         [str(b) for b in series.bags[2:]]
-    code = main(['fleet', 'ingest', *bags, '--db', str(path), '--workers', '2',
-                 '--line', 'L1', '--track', '1'])
-    return code, path
+    with LocalCluster(n_workers=2, threads_per_worker=1, host='127.0.0.1',
+                      dashboard_address='127.0.0.1:0', silence_logs=40) as cluster:
+        assert cluster.scheduler_address.startswith('tcp://127.0.0.1:')
+        code = main(['fleet', 'ingest', *bags, '--db', str(path), '--scheduler',
+                     cluster.scheduler_address, '--line', 'L1', '--track', '1'])
+        ran_there = 'analyse_or_fail' in cluster.scheduler.task_prefixes
+    return code, path, ran_there
 
 
 def _frame(x_true):
@@ -95,8 +104,9 @@ def _frame(x_true):
 
 
 def test_failing_bag_is_reported_and_the_rest_ingested(ingested, series, capsys):
-    code, path = ingested
+    code, path, ran_there = ingested
     assert code == 1  # some bag failed
+    assert ran_there  # on the cluster given by --scheduler
     con = db.connect(path, read_only=True)
     rows = con.execute('SELECT bag, status, message FROM passes ORDER BY pass_id').fetchall()
     assert [r[1] for r in rows].count('ok') == 5
@@ -110,7 +120,7 @@ def test_alignment_recovers_each_pass_frame(ingested):
     The offset also carries each vehicle's own phase shift of the reconstruction (parameters a few
     % off the nominal ones move D1 features by about 0.1 m), which no single pass can measure:
     hence the 0.25 m floor."""
-    _, path = ingested
+    _, path, _ = ingested
     con = db.connect(path, read_only=True)
     rows = con.execute("""SELECT a.offset_m, a.scale, a.offset_sd_m, a.scale_sd FROM alignments a
                           JOIN passes p USING (pass_id) WHERE p.status = 'ok'
@@ -122,7 +132,7 @@ def test_alignment_recovers_each_pass_frame(ingested):
 
 
 def test_growing_defect_and_its_rate(ingested, series):
-    _, path = ingested
+    _, path, _ = ingested
     con = db.connect(path, read_only=True)
     rows = con.execute('SELECT x_m, passes, new, rate_mm_per_year, rate_se_mm_per_year, '
                        'depth_m, depth_sd_m FROM defects WHERE abs(x_m - ?) < 3',
@@ -139,7 +149,7 @@ def test_growing_defect_and_its_rate(ingested, series):
 
 
 def test_new_defect_is_flagged(ingested, series):
-    _, path = ingested
+    _, path, _ = ingested
     con = db.connect(path, read_only=True)
     rows = con.execute('SELECT x_m, first_seen FROM defects WHERE new').fetchall()
     assert len(rows) == 1
@@ -149,7 +159,7 @@ def test_new_defect_is_flagged(ingested, series):
 
 
 def test_query_lists_the_defects_between_km(ingested, series, capsys):
-    _, path = ingested
+    _, path, _ = ingested
     capsys.readouterr()
     a = _frame(series.truth_x['grow']) / 1000 - 0.01
     assert main(['fleet', 'query', '--db', str(path), '--line', 'L1', '--from-km', str(a),
@@ -160,13 +170,27 @@ def test_query_lists_the_defects_between_km(ingested, series, capsys):
                  '--to-km', '3', '--csv']) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[0].startswith('line,track,defect_id,km') and len(lines) >= 3
-    assert main(['fleet', 'query', '--db', str(path), '--line', 'nope', '--from-km', '0',
-                 '--to-km', '3', '--json']) == 0
+    assert main(['fleet', 'query', '--db', str(path), '--line', 'L1', '--from-km', '1.2',
+                 '--to-km', '1.3']) == 0  # inside the line, no defect there
     assert json.loads(capsys.readouterr().out) == []
 
 
+@pytest.mark.parametrize('args, says', [
+    (['--line', 'nope', '--from-km', '0', '--to-km', '3'], "known lines: 'L1'"),
+    (['--line', 'L1', '--track', '2', '--from-km', '0', '--to-km', '3'], "its tracks: '1'"),
+    (['--line', 'L1', '--from-km', '5', '--to-km', '6'], 'which covers km '),
+    (['--line', 'L1', '--from-km', '-2', '--to-km', '-1'], 'lies outside line'),
+])
+def test_query_of_an_unknown_line_or_range_is_one_line_exit_2(ingested, capsys, args, says):
+    _, path, _ = ingested
+    capsys.readouterr()
+    assert main(['fleet', 'query', '--db', str(path), *args]) == 2
+    out, err = capsys.readouterr()
+    assert out == '' and err.startswith('error: ') and err.count('\n') == 1 and says in err
+
+
 def test_report_writes_html_with_figures(ingested, tmp_path):
-    _, path = ingested
+    _, path, _ = ingested
     out = tmp_path / 'report'
     assert main(['fleet', 'report', '--db', str(path), '--out', str(out)]) == 0
     html = (out / 'report.html').read_text()
@@ -176,7 +200,7 @@ def test_report_writes_html_with_figures(ingested, tmp_path):
 
 
 def test_a_stored_bag_is_skipped(ingested, series, capsys):
-    _, path = ingested
+    _, path, _ = ingested
     capsys.readouterr()
     assert main(['fleet', 'ingest', str(series.bags[0]), '--db', str(path), '--line', 'L1']) == 0
     assert 'skipped' in capsys.readouterr().out
@@ -185,7 +209,7 @@ def test_a_stored_bag_is_skipped(ingested, series, capsys):
 
 
 def test_missing_or_busy_database_is_one_line_exit_2(ingested, tmp_path, capsys):
-    _, path = ingested
+    _, path, _ = ingested
     args = ['--line', 'L1', '--from-km', '0', '--to-km', '1']
     assert main(['fleet', 'query', '--db', str(tmp_path / 'none.duckdb'), *args]) == 2
     err = capsys.readouterr().err
@@ -246,7 +270,7 @@ def test_a_defect_growing_past_the_threshold_is_not_new(ingested, series, tmp_pa
     from railgsa_ros.fleet.condition import update_line
     from railgsa_ros.review.limits import en13848_limits
 
-    _, path = ingested
+    _, path, _ = ingested
     copy = shutil.copy(path, tmp_path / 'copy.duckdb')
     con = db.connect(copy)
     update_line(con, 'L1', '1', 0.25, en13848_limits('d1'), None, fraction=0.7)

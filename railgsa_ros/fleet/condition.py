@@ -2,13 +2,15 @@
 
 Recomputed from the database after every batch (cheap next to the inversion): ``fuse`` gives
 each pass's scatter sigma_p and gain g_p and the fused profile; every pass is searched for
-defects (``defects.detect``); detections are matched into defects; each defect is then measured
-in every pass covering it, found there or not, so its depth series has no holes. The depth of
-pass p has the SD sqrt(sigma_p^2 + (s_g d)^2), s_g the RMS gain of the line's passes (a vehicle
-or speed that reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when earlier
-passes covered its position, did not find it, and saw less than NEW_RATIO of the depth of its
-first detection there (a defect that grows past the detection threshold is not new); its trend
-then starts at its first detection.
+defects (``defects.detect``) against the alert limit of the line's speed class at each cell
+(``line_speed``: the fastest pass there), so whether a defect is followed does not depend on
+how fast the train that saw it ran; detections are matched into defects; each defect is then
+measured in every pass covering it, found there or not, so its depth series has no holes. The
+depth of pass p has the SD sqrt(sigma_p^2 + (s_g d)^2), s_g the RMS gain of the line's passes
+(a vehicle or speed that reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when
+earlier passes covered its position, did not find it, and saw less than NEW_RATIO of the depth
+of its first detection there (a defect that grows past the detection threshold is not new); its
+trend then starts at its first detection.
 """
 
 from __future__ import annotations
@@ -56,6 +58,17 @@ def line_passes(con: duckdb.DuckDBPyConnection, line: str, track: str) -> list[L
     return out
 
 
+def line_speed(con: duckdb.DuckDBPyConnection, line: str, track: str
+               ) -> dict[str, np.ndarray]:
+    """cell and speed_mps, the fastest |speed| (m/s) of the line's 'ok' passes over each valid
+    cell, in cell order: the speed class of a place is the line's (EN 13848-5 classes by line
+    speed), which no measuring train exceeds; the fastest pass is its best lower bound."""
+    return db.fetch(con, """SELECT pr.cell, max(abs(pr.speed_mps)) AS speed_mps
+                            FROM profiles pr JOIN passes pa USING (pass_id)
+                            WHERE pa.line = ? AND pa.track = ? AND pa.status = 'ok' AND pr.valid
+                            GROUP BY pr.cell ORDER BY pr.cell""", [line, track])
+
+
 def pass_profile(con: duckdb.DuckDBPyConnection, pass_id: int) -> dict[str, np.ndarray]:
     """cell, u_m, valid, stamp_ns, speed_mps of one pass on its line grid, in cell order."""
     return db.fetch(con, 'SELECT cell, u_m, valid, stamp_ns, speed_mps FROM profiles '
@@ -85,11 +98,14 @@ def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
     gains = np.array([p.gain for p in passes])
     s_g = float(np.sqrt(np.mean(gains[np.isfinite(gains)] ** 2))) if np.isfinite(gains).any() \
         else 0.0
+    fastest = line_speed(con, line, track)
     found: list[tuple[int, Peak]] = []  # (pass index, peak) in time order
-    for i, p in enumerate(passes):
+    for i, p in enumerate(passes if fastest['cell'].size else []):  # none: no valid cell
         prof = pass_profile(con, p.pass_id)
+        # every valid cell of an 'ok' pass is in ``fastest``; invalid cells are not searched
+        at = np.searchsorted(fastest['cell'], prof['cell']).clip(0, fastest['cell'].size - 1)
         found += [(i, pk) for pk in detect(prof['cell'], prof['u_m'], prof['valid'],
-                                           prof['speed_mps'], dx, limits, fraction)]
+                                           fastest['speed_mps'][at], dx, limits, fraction)]
     x_found = np.array([pk.x_m for _, pk in found])
     sign_found = np.array([np.sign(pk.signed_m) for _, pk in found])
     ids = match(x_found, sign_found)

@@ -10,17 +10,44 @@ import math
 
 import duckdb
 
+from railgsa_ros.errors import InputError
+
 COLUMNS = ('line', 'track', 'defect_id', 'km', 'x_sd_m', 'sign', 'depth_m', 'depth_sd_m',
            'rate_mm_per_year', 'rate_se_mm_per_year', 'speed_kmh', 'level', 'next_level',
            'next_limit_m', 'projected', 'projected_early', 'projected_late', 'new',
            'first_seen', 'last_seen', 'passes', 'lat', 'lon')
 
 
+def line_span_km(con: duckdb.DuckDBPyConnection, line: str, track: str | None = None
+                 ) -> tuple[float, float]:
+    """(first, last) km-post the fused profile of ``line`` (``track`` if given) covers;
+    InputError naming the known lines (or tracks) when the database has no such line."""
+    known = [r[0] for r in con.execute('SELECT DISTINCT line FROM lines ORDER BY line').fetchall()]
+    if line not in known:
+        raise InputError(f'line {line!r} is not in the database; known lines: '
+                         f'{", ".join(map(repr, known)) or "none"}')
+    tracks = [r[0] for r in con.execute('SELECT track FROM lines WHERE line = ? ORDER BY track',
+                                        [line]).fetchall()]
+    if track is not None and track not in tracks:
+        raise InputError(f'line {line!r} has no track {track!r}; its tracks: '
+                         f'{", ".join(map(repr, tracks))}')
+    lo, hi = con.execute("""SELECT min(f.cell * l.dx_m), max(f.cell * l.dx_m) FROM fused f
+                            JOIN lines l USING (line, track)
+                            WHERE line = $line AND ($track IS NULL OR track = $track)""",
+                         {'line': line, 'track': track}).fetchone()
+    return (float('nan'), float('nan')) if lo is None else (lo / 1000.0, hi / 1000.0)
+
+
 def defects_between(con: duckdb.DuckDBPyConnection, line: str, from_km: float, to_km: float,
                     track: str | None = None) -> list[dict]:
     """The followed defects of ``line`` (and ``track`` if given) with from_km <= km <= to_km,
-    in km order: one dict per defect with COLUMNS."""
+    in km order: one dict per defect with COLUMNS. InputError for a line or track the database
+    does not hold, or a km range that misses the line's (``line_span_km``)."""
     lo, hi = sorted((from_km, to_km))
+    first, last = line_span_km(con, line, track)
+    if not (math.isfinite(lo) and math.isfinite(hi)) or not lo <= last or not hi >= first:
+        raise InputError(f'km {lo:g}-{hi:g} lies outside line {line!r}, which covers km '
+                         f'{first:.3f}-{last:.3f}')
     sql = (f'SELECT {", ".join(COLUMNS)} FROM defects WHERE line = ? AND km BETWEEN ? AND ?'
            + (' AND track = ?' if track is not None else '') + ' ORDER BY km, track')
     params = [line, lo, hi] + ([track] if track is not None else [])
