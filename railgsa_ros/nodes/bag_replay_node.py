@@ -28,18 +28,16 @@ import time
 from typing import Any
 
 from builtin_interfaces.msg import Time
-import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from railgsa_ros import qos
 from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.nodes import console_main, parameter_overrides
 from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes.process import run_node
 from railgsa_ros.nodes.qos import to_rclpy
 from railgsa_ros.playback.pacing import Pacer
 from railgsa_ros.playback.schedule import (
@@ -51,7 +49,6 @@ from railgsa_ros.playback.schedule import (
     select_topics,
     window,
 )
-from railgsa_ros.playback.signals import stop_on_signals
 from railgsa_ros.playback.source import BagSource
 
 NAME = 'bag_replay_node'
@@ -86,11 +83,6 @@ def message_class(msgtype: str) -> Any | None:
         return getattr(importlib.import_module(pkg.replace('/', '.')), name)
     except (ImportError, AttributeError, ValueError):
         return None
-
-
-def init(args: list[str] | None) -> None:
-    """rclpy.init without rclpy's own signal handlers (stop_on_signals handles them)."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
 
 
 def final_note(node: Node, text: str) -> None:
@@ -229,19 +221,9 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
     SIGTERM or ``stop``. RailGsaError propagates (the caller prints it and exits 2).
     """
     stop = stop or threading.Event()
-    with stop_on_signals(stop):
-        init(args)
-        node = None
-        try:
-            node = BagReplayNode(stop, parameter_overrides=parameter_overrides(parameters or {}))
-            node.play()
-        except ExternalShutdownException:
-            pass
-        finally:
-            if node is not None:
-                node.destroy_node()
-            rclpy.try_shutdown()
-    return 0
+    return run_node(
+        lambda: BagReplayNode(stop, parameter_overrides=parameter_overrides(parameters or {})),
+        args, session=lambda node, _executor, _stopped: node.play(), stop=stop)
 
 
 def main(args: list[str] | None = None) -> int:

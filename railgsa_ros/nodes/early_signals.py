@@ -7,11 +7,11 @@ script), importing this module replaces the SIGINT and SIGTERM handlers with one
 blocks still run. A signal that lands inside an import exits at once with ``os._exit(0)``
 instead: an exception raised there is turned into an ImportError by rclpy's extension loader
 (rc 1 and a traceback), and nothing needs cleaning up before the node exists. rclpy's own
-handlers are not installed (``lifecycle.run`` starts rclpy without them). Once the node spins,
-``run`` calls ``hand_over()``: from then on a signal only sets ``stop_requested()`` (raising
-anywhere, e.g. inside rclpy's ``take_message``, turned into a ``RuntimeError`` and exit 1 in one
-try of three), and ``run`` stops, flushes and exits 0. Imported by anything else (tests, the CLI)
-it changes nothing. No ROS import.
+handlers are not installed (``process.run_node`` starts rclpy without them). Once the node is
+built, ``run_node`` replaces these handlers by ones that only set its stop event (raising
+anywhere, e.g. inside rclpy's ``take_message``, is turned into a ``RuntimeError`` and exit 1 in
+one try of three), and the node stops, flushes and exits 0. Imported by anything else (tests,
+the CLI) it changes nothing. No ROS import.
 """
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ import threading
 from types import FrameType
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_state = {'handed_over': False, 'stop': False}
 
 
 def _inside_import(frame: FrameType | None) -> bool:
@@ -37,9 +36,6 @@ def _inside_import(frame: FrameType | None) -> bool:
 
 
 def _exit_once(_signum: int, frame: FrameType | None) -> None:
-    if _state['handed_over']:
-        _state['stop'] = True
-        return
     for sig in SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     if _inside_import(frame):
@@ -53,16 +49,6 @@ def install() -> None:
     if threading.current_thread() is threading.main_thread():
         for sig in SIGNALS:
             signal.signal(sig, _exit_once)
-
-
-def hand_over() -> None:
-    """From now on a signal only sets ``stop_requested()`` (the node is running)."""
-    _state['handed_over'] = True
-
-
-def stop_requested() -> bool:
-    """Whether SIGINT or SIGTERM arrived after ``hand_over()``."""
-    return _state['stop']
 
 
 def installed() -> bool:

@@ -21,17 +21,15 @@ import sys
 from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
 from railgsa_ros.bag import RunEncoder
-from railgsa_ros.errors import RailGsaError
 from railgsa_ros.imu import PRESETS
 from railgsa_ros.nodes import console_main
 from railgsa_ros.nodes.diagnostics import OK, WARN, DiagnosticsPublisher, Report
 from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes.process import run_node
 from railgsa_ros.nodes.qos import output_qos, sensor_qos
 from railgsa_ros.qos import MIN_SENSOR_DEPTH, history_depth
 from railgsa_ros.scenario import run_scenario
@@ -121,23 +119,7 @@ class ImuSimNode(Node):
 
 def run(args: list[str] | None = None) -> int:
     """Spin until SIGINT/SIGTERM (0); a bad parameter raises RailGsaError."""
-    node = None
-    try:
-        rclpy.init(args=args)
-        node = ImuSimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RailGsaError:
-        raise
-    except Exception:
-        if rclpy.ok():  # a real error; after SIGINT/SIGTERM a callback may hit the closed context
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(ImuSimNode, args)
 
 
 def main(args: list[str] | None = None) -> int:

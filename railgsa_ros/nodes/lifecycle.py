@@ -20,20 +20,17 @@ restart is visible there.
 from __future__ import annotations
 
 from collections.abc import Callable
-import sys
 import time
 from typing import Any
 import uuid
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
-from rclpy.signals import SignalHandlerOptions
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.nodes import early_signals
-from railgsa_ros.nodes.params import ParamSpec, check_params_files, declare
-from railgsa_ros.nodes.specs import ALL_PARAMETER_NAMES
+from railgsa_ros.nodes import console_main
+from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes.process import run_node, spin_until_stopped
 
 AUTOSTART = ParamSpec('autostart', True, 'configure and activate at start-up (false: wait for '
                       '~/change_state)', read_only=True)
@@ -41,7 +38,6 @@ SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FA
 #: one id per process: a node restarted by a supervisor shows a new one on /diagnostics
 BOOT_ID = uuid.uuid4().hex[:12]
 STARTED_NS = time.time_ns()
-STOP_POLL_S = 0.1  #: a stop request is noticed within this, s
 
 
 class ManagedNode(Node):
@@ -152,62 +148,16 @@ class ManagedNode(Node):
 
 
 def run(factory: type[ManagedNode], args: list[str] | None = None) -> int:
-    """Build the node and spin until SIGINT/SIGTERM: exit code 0, or 2 with one line
-    ``error: <reason>`` for a bad ``--params-file`` (missing, malformed, unknown keys, no section
-    for the node) or when autostart fails on bad parameters.
+    """Build the node and spin until SIGINT/SIGTERM (``process.run_node``): exit code 0, or 2
+    with one line ``error: <reason>`` for a bad ``--params-file`` (missing, malformed, unknown
+    keys, no section for the node) or when autostart fails on bad parameters. A stop request
+    shuts the node down through its lifecycle (``finish``: pending input processed, the filters
+    flushed, every output published and acknowledged) and the process exits 0."""
+    def session(node: ManagedNode, executor: SingleThreadedExecutor,
+                stopped: Callable[[], bool]) -> None:
+        spin_until_stopped(node, executor, stopped)
+        node.finish()
 
-    Started as a node (``early_signals`` installed), rclpy gets no signal handlers: a signal
-    only sets a flag that the spin loop checks every ``STOP_POLL_S``, so it never raises inside
-    rclpy; the node then shuts down through its lifecycle (``finish``: pending input processed,
-    the filters flushed, every output published and acknowledged) and the process exits 0.
-    Otherwise (imported by another program) rclpy's handlers apply: its signal handler shuts
-    the context down, and whatever that makes fail while the node is being built (RCLError
-    'context is invalid', a failed configure) is a stop request, exit 0.
-    """
-    try:
-        check_params_files(sys.argv[1:] if args is None else args, factory.NODE_NAME,
-                           factory.parameter_names(), ALL_PARAMETER_NAMES)
-    except ConfigError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    own_signals = early_signals.installed()
-    node = None
-    try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals
-                   else None)
-        node = factory()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        if own_signals:
-            early_signals.hand_over()
-            while not early_signals.stop_requested() and rclpy.ok():
-                executor.spin_once(timeout_sec=STOP_POLL_S)
-            node.finish()
-        else:
-            executor.spin()
-    except ConfigError as exc:
-        if not rclpy.ok():  # a stop request shut the context down while configuring
-            return 0
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        if rclpy.ok():  # a genuine failure, not a stop request while the node was built
-            raise
-    finally:
-        _destroy(node)
-        rclpy.try_shutdown()
-    return 0
-
-
-def _destroy(node: ManagedNode | None) -> None:
-    """Destroy the node; a failure after a stop request (context already shut down) is part of
-    stopping, not an error."""
-    if node is None:
-        return
-    try:
-        node.destroy_node()
-    except Exception:
-        if rclpy.ok():
-            raise
+    return console_main(lambda ros_args: run_node(
+        factory, ros_args, session=session,
+        params=(factory.NODE_NAME, factory.parameter_names())), args)

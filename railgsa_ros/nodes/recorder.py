@@ -16,7 +16,7 @@ import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal
 
 # isort: split
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from functools import partial
 import sys
 import threading
@@ -24,19 +24,19 @@ import time
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from railgsa_ros import qos
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.nodes import console_main, parameter_overrides
-from railgsa_ros.nodes.bag_replay_node import final_note, init, message_class
+from railgsa_ros.nodes.bag_replay_node import final_note, message_class
 from railgsa_ros.nodes.params import ParamSpec, declare
+from railgsa_ros.nodes.process import run_node
 from railgsa_ros.nodes.qos import bag_record, from_rclpy, to_rclpy
 from railgsa_ros.playback.recording import BagRecorder, TopicSpec
 from railgsa_ros.playback.schedule import absolute
-from railgsa_ros.playback.signals import stop_on_signals
 
 NAME = 'recorder'
 #: Default reader history (messages): one second at 1 kHz.
@@ -138,28 +138,16 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
     write error) propagates after the finished files are made safe; the caller prints it and
     exits 2.
     """
-    stop = stop or threading.Event()
-    with stop_on_signals(stop):
-        init(args)
-        node = None
-        try:
-            node = RecorderNode(parameter_overrides=parameter_overrides(parameters or {}))
-            executor = SingleThreadedExecutor()
-            executor.add_node(node)
-            while not (stop.is_set() or node.done) and rclpy.ok():
-                executor.spin_once(timeout_sec=DISCOVERY_S)
-            if rclpy.ok():
-                node.drain()
-        except ExternalShutdownException:
-            pass
-        finally:
-            if node is not None:
-                try:
-                    node.finish()
-                finally:
-                    node.destroy_node()
-            rclpy.try_shutdown()
-    return 0
+    def session(node: RecorderNode, executor: SingleThreadedExecutor,
+                stopped: Callable[[], bool]) -> None:
+        while not (stopped() or node.done):
+            executor.spin_once(timeout_sec=DISCOVERY_S)
+        if rclpy.ok():
+            node.drain()
+
+    overrides = parameter_overrides(parameters or {})
+    return run_node(lambda: RecorderNode(parameter_overrides=overrides), args, session=session,
+                    stop=stop, close=RecorderNode.finish)
 
 
 def main(args: list[str] | None = None) -> int:
