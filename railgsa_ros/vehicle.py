@@ -22,6 +22,10 @@ from railgsa_ros.errors import ConfigError
 
 PARAM_NAMES = ('m_s', 'm_us', 'k_s', 'k_us', 'c')
 PARAM_UNITS = {'m_s': 'kg', 'm_us': 'kg', 'k_s': 'N/m', 'k_us': 'N/m', 'c': 'N*s/m'}
+#: What each parameter is (node parameter descriptions, docs).
+PARAM_DOCS = {'m_s': 'sprung (car-body) mass', 'm_us': 'unsprung (wheelset) mass',
+              'k_s': 'suspension stiffness', 'k_us': 'wheel-rail contact stiffness',
+              'c': 'suspension damping'}
 #: Physical range of each parameter of one quarter of a rail vehicle (inclusive; Table 1 lies
 #: well inside): the same bounds in every entry point (vehicle files, node parameters, ``gsa``).
 #: Values outside (1e300 kg) are typing errors, and they overflow the filters to NaN.

@@ -1,8 +1,9 @@
 """Parameter specs shared by irregularity_node and uncertainty_node (same names and defaults).
 
 - INVERSION_SPECS: one per InversionConfig field (defaults = config/irregularity.yaml).
-- VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults and the physical
-  bounds of ``vehicle.PARAM_BOUNDS`` (the same in vehicle files and the CLI).
+- VEHICLE_SPECS: m_s, m_us, k_s, k_us, c with the paper's Table 1 defaults, and the physical
+  bounds, units and descriptions of ``vehicle`` (PARAM_BOUNDS: the same in vehicle files and
+  the CLI).
 - NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, input QoS,
   stuck sensor and backward time limits, idle flush and output pacing).
 - UNCERTAINTY_SPECS: uncertainty_node's own (UncertaintyConfig fields and its extras).
@@ -21,20 +22,17 @@ from railgsa_ros.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSO
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.vehicle import (
     PARAM_BOUNDS,
+    PARAM_DOCS,
     PARAM_NAMES,
     PARAM_UNITS,
     VehicleParams,
     load_vehicle,
 )
 
-_VEHICLE_DOCS = {'m_s': 'sprung (car-body) mass', 'm_us': 'unsprung (wheelset) mass',
-                 'k_s': 'suspension stiffness', 'k_us': 'wheel-rail contact stiffness',
-                 'c': 'suspension damping'}
-
 INVERSION_SPECS = tuple(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'],
                                   f.metadata['choices']) for f in fields(InversionConfig))
 VEHICLE_SPECS = tuple(ParamSpec(n, getattr(VehicleParams(), n),
-                                f'{_VEHICLE_DOCS[n]}, {PARAM_UNITS[n]}', PARAM_BOUNDS[n])
+                                f'{PARAM_DOCS[n]}, {PARAM_UNITS[n]}', PARAM_BOUNDS[n])
                       for n in PARAM_NAMES)
 NODE_SPECS = (
     ParamSpec('vehicle_file', '', 'YAML file with a "vehicle:" section; when set, its values '
