@@ -31,13 +31,13 @@ Usage: python benchmarks/bench_inverse_accuracy.py [--length 800] [--seed 1] [--
 
 from __future__ import annotations
 
-import argparse
 import itertools
 from unittest import mock
 
 from bench_uq_calibration import calibration_table
 from bench_uq_coverage import coverage_table
 import numpy as np
+from tables import header, run_options
 
 from railgsa_ros.imu import accel_covariance, imu_spec
 from railgsa_ros.inverse.band import (
@@ -95,8 +95,7 @@ def baseline(run, speed: float, vehicle=None):
 
 def methods_table(length: float, seed: int, multirate: bool) -> None:
     print('(b) ADXL355, German low + 8 mm dip / 3 mm joint / 0.3 mm weld, D1 on distance')
-    print('| v m/s | method                 | RMSE mm | corr    | dip peak mm | / base | pass |')
-    print('|---|---|---|---|---|---|---|')
+    header('v m/s', 'method', 'RMSE mm', 'corr', 'dip peak mm', '/ base', 'pass')
     rates = []
     for speed in (10.0, 20.0, 40.0):
         run = run_scenario('german-low', speed, length / speed, None, 'adxl355', seed=seed,
@@ -113,9 +112,8 @@ def methods_table(length: float, seed: int, multirate: bool) -> None:
         print(row('exact baseline (FFT)', speed, b, b.rmse))
     if multirate:
         print('\n(b2) multirate band stage against the single-rate FIR, same runs')
-        print('| v m/s | method                 | RMSE single mm | RMSE multirate mm | '
-              'max diff mm | RMS diff mm |')
-        print('|---|---|---|---|---|---|')
+        header('v m/s', 'method', 'RMSE single mm', 'RMSE multirate mm',
+               'max diff mm', 'RMS diff mm')
         for speed, name, rmse1, rmse, big, rms in rates:
             print(f'| {speed:4.0f} | {name:<22} | {rmse1 * 1e3:8.4f} | {rmse * 1e3:8.4f} | '
                   f'{big * 1e3:9.5f} | {rms * 1e3:9.5f} |')
@@ -137,9 +135,8 @@ def difference(single, multi, margin_m: float = 100.0) -> tuple[float, float]:
 
 def delay_table(length: float, seed: int) -> None:
     print('\n(c) sensor delay of a causal chip filter (no dropouts), D1 RMSE mm')
-    print('| sensor, v | group delay ms | no delay | delayed, not compensated | '
-          'compensated | exact baseline |')
-    print('|---|---|---|---|---|---|')
+    header('sensor, v', 'group delay ms', 'no delay', 'delayed, not compensated', 'compensated',
+           'exact baseline')
     for name, speed in (('adxl355', 20.0), ('bmi088', 30.0)):
         run = run_scenario('german-low', speed, length / speed, None,
                            imu_spec(name, dropout_fraction=0), seed=seed, defects=DEFECTS)
@@ -153,9 +150,8 @@ def delay_table(length: float, seed: int) -> None:
 
 def variable_speed_table(seed: int) -> None:
     print('\n(d) variable speed with stops (ADXL355 model), D1 RMSE mm on distance')
-    print('| profile | length m | time-domain band > 3 m/s | grid + distance band > 3 m/s | '
-          'time-domain > 10 m/s | grid > 10 m/s | RMS difference > 3 m/s |')
-    print('|---|---|---|---|---|---|---|')
+    header('profile', 'length m', 'time-domain band > 3 m/s', 'grid + distance band > 3 m/s',
+           'time-domain > 10 m/s', 'grid > 10 m/s', 'RMS difference > 3 m/s')
     for name, spec in PROFILES.items():
         prof = parse_speed_profile(spec)
         run = run_scenario('german-low', prof, prof.duration_s, None, 'adxl355', seed=seed,
@@ -218,9 +214,8 @@ def posterior_std(length_s: float, speed: float = 20.0, rate: float = 1000.0) ->
 
 def dropout_table() -> None:
     print('\n(e) dropouts (ADXL355 model, 20 m/s, 8 places in 2 runs), D1 error mm')
-    print('| dropout s | bridge | max within 50 m (mean) | max within 50 m (worst) | '
-          'RMS 100 m after (mean) | model posterior std, worst output |')
-    print('|---|---|---|---|---|---|')
+    header('dropout s', 'bridge', 'max within 50 m (mean)', 'max within 50 m (worst)',
+           'RMS 100 m after (mean)', 'model posterior std, worst output')
     runs = [run_scenario('german-low', 20.0, 40.0, None, imu_spec('adxl355', dropout_fraction=0),
                          seed=s, defects='dip@400:len=6:depth=8e-3') for s in (1, 3)]
     for length in (0.05, 0.2, 1.0):
@@ -252,8 +247,7 @@ def mismatch_table(length: float, seed: int) -> None:
     run = run_scenario('german-low', 30.0, length / 30.0, None, 'bmi088', seed=seed,
                        defects=DEFECTS, vehicle=true)
     print('\n(f) parameter mismatch: true k_s +15 %, k_us -10 %, c -15 %; BMI088 model, 30 m/s')
-    print('| inversion with | D1 RMSE mm | dip peak error mm |')
-    print('|---|---|---|')
+    header('inversion with', 'D1 RMSE mm', 'dip peak error mm')
     for name, vehicle in (('nominal parameters', nominal), ('true parameters', true)):
         chain, out = reconstruct(run, vehicle=vehicle)
         s = score(chain, out.u_m, run.chainage_m, run.truth_u_m, defect=DIP)
@@ -264,9 +258,7 @@ def mismatch_table(length: float, seed: int) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--length', type=float, default=800.0, help='track length, m')
-    parser.add_argument('--seed', type=int, default=1)
+    parser = run_options(__doc__, 800.0)
     parser.add_argument('--multirate', action='store_true',
                         help='add the multirate against single-rate table')
     parser.add_argument('--tables', default='abcdefgh',

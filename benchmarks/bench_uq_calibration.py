@@ -14,9 +14,8 @@ Usage: python benchmarks/bench_uq_calibration.py [--length 2000] [--seed 1]
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
+from tables import header, run_options
 
 from railgsa_ros.calibrate import calibrate
 from railgsa_ros.imu import accel_covariance, imu_spec
@@ -73,8 +72,7 @@ def calibration_table(length: float = 2000.0, seed: int = 1) -> None:
     posterior = {**prior, **{n: Normal(m, s, lower=0.0)
                              for n, m, s in zip(cal.names, cal.mean, std, strict=True)}}
     ucfg = UncertaintyConfig(inversion=config, qoi='')
-    print('| parameters | D1 RMSE mm (rest) | / true | 95 % half-width mm | coverage |')
-    print('|---|---|---|---|---|')
+    header('parameters', 'D1 RMSE mm (rest)', '/ true', '95 % half-width mm', 'coverage')
     rmse = {}
     for name, theta in (('nominal', nominal.as_array()), ('true', true),
                         ('calibrated', cal.theta)):
@@ -90,10 +88,7 @@ def calibration_table(length: float = 2000.0, seed: int = 1) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--length', type=float, default=2000.0, help='m')
-    parser.add_argument('--seed', type=int, default=1)
-    args = parser.parse_args()
+    args = run_options(__doc__, 2000.0).parse_args()
     calibration_table(args.length, args.seed)
 
 
