@@ -60,7 +60,7 @@ def make_bag(path: Path, hours: float, base_s: float, speed: float) -> Path:
             writer.add_topic(*topics[key])
         for k in range(copies):
             for lo in range(0, len(encoder), 50_000):
-                batches = encoder.encode(lo, lo + 50_000, k * span)
+                batches = encoder.encode_rows(lo, lo + 50_000, k * span)
                 writer.write_batches({topics[key][0]: batches[key] for key in ('imu', 'odom')})
     return path
 

@@ -2,19 +2,24 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 import shutil
 from types import SimpleNamespace
+import zlib
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
+from mcap.records import Chunk
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as McapRos2Writer
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosReliability
+import zstandard
 
 from railgsa_ros.bag import BagWriter, cdr, read_imu, read_messages, summarize, write_run
 from railgsa_ros.bag import reader as reader_module
@@ -311,7 +316,7 @@ def test_bag_writer_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -
         raise OSError(28, 'No space left on device')
 
     with monkeypatch.context() as m:
-        m.setattr('rosbags.rosbag2.Writer.write', disk_full)
+        m.setattr('railgsa_ros.bag.mcap_storage.McapStorage._emit', disk_full)
         with pytest.raises(ConfigError, match=r'c: cannot write \(No space left on device\)'):
             write_run(tmp_path / 'c', run)
     assert [p.name for p in tmp_path.iterdir()] == ['b']
@@ -458,3 +463,51 @@ def test_mcap_fast_path_reads_what_rosbags_reads(tmp_path: Path, monkeypatch: py
                  'odom_stamps_ns', 'speed_mps'):
         np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
     assert fast.stamps_ns.size == 700
+
+
+def test_block_writer_writes_an_indexed_mcap_with_crcs_read_back_by_rosbags(
+        tmp_path: Path) -> None:
+    # Blocks of rows (two chunks of Imu), messages of varying length given as bytes, and single
+    # writes after them: every reader sees the same messages in log-time order (ties: topic
+    # order), and every CRC the file stores is the CRC-32 of what it covers (computed here).
+    n = 6000
+    stamps = T0 + np.arange(n, dtype=np.int64) * 1_000_000
+    imu = cdr.encode_rows(IMU, stamps, ['imu_link'], np.random.default_rng(1).normal(size=(n, 37)))
+    varied = [bytes([k % 251]) * (k % 7 + 3) for k in range(0, n, 10)]
+    with BagWriter(tmp_path / 'b', 'mcap', 'zstd') as bag:
+        bag.add_topic('/imu/data', IMU.msgtype)
+        bag.add_topic('/v', 'std_msgs/msg/String')
+        bag.write_batches({'/imu/data': (stamps, imu), '/v': (stamps[::10], varied)})
+        bag.write('/v', int(stamps[-1]) + 5, b'\x00\x01\x00\x00late')
+    expected = sorted([(int(t), 0, k, '/imu/data', imu[k].tobytes())
+                       for k, t in enumerate(stamps)]
+                      + [(int(t), 1, k, '/v', r) for k, (t, r) in enumerate(zip(
+                          stamps[::10], varied, strict=True))]
+                      + [(int(stamps[-1]) + 5, 1, n, '/v', b'\x00\x01\x00\x00late')])
+    with AnyReader([tmp_path / 'b']) as reader:
+        got = [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+    assert got == [(topic, t, raw) for t, _, _, topic, raw in expected]
+    stream = read_imu(tmp_path / 'b')
+    np.testing.assert_array_equal(stream.stamps_ns, stamps)
+    np.testing.assert_array_equal(stream.accel, cdr.decode(IMU, [r.tobytes() for r in imu])
+                                  .values[:, 25:28])
+
+    (file,) = (tmp_path / 'b').glob('*.mcap')
+    data = file.read_bytes()
+    with file.open('rb') as f:
+        reader = make_reader(f, validate_crcs=True)
+        assert sum(1 for _ in reader.iter_messages()) == len(expected)
+        summary = reader.get_summary()
+    assert summary.statistics.message_count == len(expected)
+    assert len(summary.chunk_indexes) >= 2
+    for index in summary.chunk_indexes:
+        at = index.chunk_start_offset + 9
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(
+            data[at:index.chunk_start_offset + index.chunk_length])))
+        raw = zstandard.ZstdDecompressor().decompress(chunk.data,
+                                                      max_output_size=chunk.uncompressed_size)
+        assert chunk.uncompressed_crc == zlib.crc32(raw) != 0
+    data_end = int.from_bytes(data[-28:-20], 'little') - 13  # DataEnd record before the summary
+    assert data[data_end] == 0x0F
+    assert int.from_bytes(data[data_end + 9:data_end + 13], 'little') == zlib.crc32(
+        data[:data_end])

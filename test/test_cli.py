@@ -134,7 +134,7 @@ def test_keyboard_interrupt_exits_130_and_leaves_nothing(tmp_path: Path,
     def interrupted(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr('railgsa_ros.bag.run.RunEncoder.encode', interrupted)
+    monkeypatch.setattr('railgsa_ros.bag.run.RunEncoder.encode_rows', interrupted)
     assert main(['simulate', '--out', str(tmp_path / 'b'), '--duration', '1']) == 130
     assert list(tmp_path.iterdir()) == []
     assert capsys.readouterr().err == ''

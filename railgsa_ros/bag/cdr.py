@@ -56,12 +56,21 @@ def encode(layout: StampedLayout, stamps_ns: np.ndarray, strings: Sequence[str],
            values: np.ndarray) -> list[bytes]:
     """Serialise N messages (little-endian CDR) with the same strings; values shape (N, n_doubles)
     or (n_doubles,) broadcast to every message."""
+    rows = encode_rows(layout, stamps_ns, strings, values)
+    flat, size = rows.tobytes(), rows.shape[1]
+    return [flat[i:i + size] for i in range(0, rows.size, size)] if rows.size else []
+
+
+def encode_rows(layout: StampedLayout, stamps_ns: np.ndarray, strings: Sequence[str],
+                values: np.ndarray) -> np.ndarray:
+    """``encode`` as one (N, L) uint8 array: message i is row i (all the same length), what
+    ``BagWriter.write_batches`` writes without a Python object per message."""
     if len(strings) != layout.n_strings:
         raise ValueError(f'{layout.msgtype}: expected {layout.n_strings} strings')
     sec, nsec = split_stamps(stamps_ns)
     n = sec.size
     if n == 0:
-        return []
+        return np.zeros((0, 0), np.uint8)
     values = np.broadcast_to(np.asarray(values, dtype='<f8'), (n, layout.n_doubles))
     prefix = bytearray()
     for text in strings:
@@ -77,8 +86,7 @@ def encode(layout: StampedLayout, stamps_ns: np.ndarray, strings: Sequence[str],
     buf[:, 8:12] = nsec.astype('<u4').view(np.uint8).reshape(n, 4)
     buf[:, 12:4 + body_at] = np.frombuffer(bytes(prefix), np.uint8)
     buf[:, 4 + body_at:] = np.ascontiguousarray(values).view(np.uint8).reshape(n, -1)
-    flat = buf.tobytes()
-    return [flat[i:i + size] for i in range(0, n * size, size)]
+    return buf
 
 
 def _read_u32(block: np.ndarray, cols: np.ndarray, little: np.ndarray) -> np.ndarray:

@@ -72,7 +72,15 @@ class RunEncoder:
     def encode(self, start: int = 0, stop: int | None = None,
                offset_ns: int = 0) -> dict[str, Batch]:
         """Messages of IMU samples [start, stop), stamps shifted by ``offset_ns``: a dict
-        'imu'|'odom'|'truth' -> (stamps_ns, raw CDR messages)."""
+        'imu'|'odom'|'truth' -> (stamps_ns, raw CDR messages as bytes)."""
+        rows = self.encode_rows(start, stop, offset_ns)
+        return {key: (stamps, [r.tobytes() for r in block])
+                for key, (stamps, block) in rows.items()}
+
+    def encode_rows(self, start: int = 0, stop: int | None = None,
+                    offset_ns: int = 0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """``encode`` with each topic's messages as one (N, L) uint8 array (``cdr.encode_rows``):
+        what ``BagWriter.write_batches`` takes without a Python object per message."""
         stop = len(self) if stop is None else stop
         run = self.run
         stamps = self.stamps_ns[start:stop] + offset_ns
@@ -87,11 +95,12 @@ class RunEncoder:
             odometer = self.origin_m + self.odom_scale * (odometer - self.origin_m)
         odom_values = odometry_values(odometer, self.odom_scale * np.asarray(run.speed_mps)[odom])
         return {
-            'imu': (stamps, cdr.encode(IMU, stamps, [self.frame_id],
-                                       imu_values(run.accel[start:stop], self.accel_variance))),
-            'odom': (odom_stamps, cdr.encode(ODOMETRY, odom_stamps, ['odom', 'base_link'],
-                                             odom_values)),
-            'truth': (stamps, cdr.encode(POINT_STAMPED, stamps, ['track'], truth)),
+            'imu': (stamps, cdr.encode_rows(IMU, stamps, [self.frame_id],
+                                            imu_values(run.accel[start:stop],
+                                                       self.accel_variance))),
+            'odom': (odom_stamps, cdr.encode_rows(ODOMETRY, odom_stamps, ['odom', 'base_link'],
+                                                  odom_values)),
+            'truth': (stamps, cdr.encode_rows(POINT_STAMPED, stamps, ['track'], truth)),
         }
 
     def topics(self) -> dict[str, tuple[str, str, Any]]:
@@ -173,7 +182,8 @@ def write_run_chunks(path: str | Path, chunks: Iterable[Any], storage: str = 'mc
                 for topic, msgtype, offered in topics.values():
                     bag.add_topic(topic, msgtype, offered)
             for start in range(0, len(encoder), WRITE_CHUNK):
-                batches = encoder.encode(start, start + WRITE_CHUNK, offset_ns)
+                batches: dict[str, Batch] = encoder.encode_rows(start, start + WRITE_CHUNK,
+                                                                offset_ns)
                 if gnss is not None:
                     stop = start + WRITE_CHUNK
                     batches['gnss'] = navsat_messages(

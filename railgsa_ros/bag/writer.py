@@ -1,4 +1,5 @@
-"""Writing rosbag2 bags (metadata.yaml + one .mcap or .db3 file) atomically with rosbags."""
+"""Writing rosbag2 bags (metadata.yaml + one .mcap or .db3 file) atomically with rosbags (MCAP:
+``mcap_storage``, whole blocks of messages at once)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ from typing import Any
 
 import numpy as np
 from rosbags.interfaces import Connection, Qos
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 
+from railgsa_ros.bag.mcap_storage import RosbagWriter
 from railgsa_ros.bag.messages import typestore
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.fileio import atomic_output
@@ -19,7 +21,7 @@ from railgsa_ros.qos import record_qos
 
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
-Batch = tuple[np.ndarray, Sequence[bytes]]
+Batch = tuple[np.ndarray, np.ndarray | Sequence[bytes]]  # log times (N,), (N, L) uint8 or bytes
 
 
 class BagWriter:
@@ -44,13 +46,13 @@ class BagWriter:
         self.compression = compression
         self.overwrite = overwrite
         self._stack: ExitStack | None = None
-        self._writer: Writer | None = None
+        self._writer: RosbagWriter | None = None
         self._connections: dict[str, Connection] = {}
 
     def __enter__(self) -> BagWriter:
         with ExitStack() as stack:
             tmp = stack.enter_context(atomic_output(self.path, self.overwrite))
-            writer = Writer(tmp, version=9, storage_plugin=STORAGES[self.storage])
+            writer = RosbagWriter(tmp, version=9, storage_plugin=STORAGES[self.storage])
             if self.compression:
                 writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer = stack.enter_context(writer)
@@ -81,16 +83,27 @@ class BagWriter:
         self._writer.write(conn, int(log_time_ns), msg)
 
     def write_batches(self, batches: Mapping[str, Batch]) -> None:
-        """Write serialised messages of several topics interleaved in log-time order (stable),
-        as a recorder would; ``batches`` maps topic -> (log_times_ns (N,), raw messages)."""
-        topics = list(batches)
-        times = [np.asarray(batches[t][0], dtype=np.int64) for t in topics]
-        which = np.concatenate([np.full(t.size, i) for i, t in enumerate(times)])
-        index = np.concatenate([np.arange(t.size) for t in times])
-        order = np.argsort(np.concatenate(times), kind='stable')
-        conns = [self._connections[t] for t in topics]
-        raws = [batches[t][1] for t in topics]
-        stamps = np.concatenate(times)[order].tolist()
-        write = self._writer.write
-        for w, i, t in zip(which[order].tolist(), index[order].tolist(), stamps, strict=True):
-            write(conns[w], t, raws[w][i])
+        """Write serialised messages of several topics interleaved in log-time order (stable:
+        topic order, then message order, on ties), as a recorder would; ``batches`` maps topic
+        -> (log_times_ns (N,), messages: (N, L) uint8 rows, as ``cdr.encode_rows``, or a
+        sequence of bytes)."""
+        parts, ties = [], []
+        for rank, (topic, (times, raws)) in enumerate(batches.items()):
+            times = np.asarray(times, dtype=np.int64)
+            for rows, at in _blocks(raws):
+                parts.append((self._connections[topic], times[at], rows))
+                ties.append((rank << 40) + at)
+        self._writer.write_parts(parts, ties)
+
+
+def _blocks(raws: np.ndarray | Sequence[bytes]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Messages as (rows (n, L) uint8, their indices (n,)) per message length."""
+    if isinstance(raws, np.ndarray):
+        return [(raws, np.arange(raws.shape[0]))]
+    lengths = np.fromiter(map(len, raws), np.int64, len(raws))
+    out = []
+    for length in np.unique(lengths):
+        at = np.flatnonzero(lengths == length)
+        flat = b''.join(bytes(raws[i]) for i in at)
+        out.append((np.frombuffer(flat, np.uint8).reshape(at.size, int(length)), at))
+    return out
