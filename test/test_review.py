@@ -203,3 +203,30 @@ def test_a_truth_bag_is_shifted_onto_the_run_chainage() -> None:
     assert moved.chainage_m[0] == pytest.approx(-1.5)  # 1003.5 m of the truth is 2 m of the run
     csv = Truth(Path('t.csv'), np.arange(10.0), np.zeros(10))
     assert csv.aligned(0, 5.0) is csv  # a CSV already counts from the run start
+
+
+def test_a_streamed_truth_bag_equals_the_whole_truth_at_the_cell_centres(tmp_path: Path) -> None:
+    # The truth read in small batches, shifted and resampled cell by cell, against np.interp of
+    # the whole aligned truth at the centres of the review's 0.25 m cells.
+    from types import SimpleNamespace
+
+    from railgsa_ros.bag import write_run
+    from railgsa_ros.review.truth import load_truth, truth_on_grid
+
+    n = 4000
+    rng = np.random.default_rng(3)
+    stamps = 1_700_000_000 * 10**9 + np.arange(n, dtype=np.int64) * 10**6
+    chainage = 500.0 + np.cumsum(rng.uniform(0.01, 0.05, n))
+    run = SimpleNamespace(stamps_ns=stamps, accel=np.zeros((n, 3)), speed_mps=np.ones(n),
+                          chainage_m=chainage, truth_u_m=rng.normal(0, 1e-3, n))
+    bag = write_run(tmp_path / 'truth', run)
+    run_stamp, run_chainage = int(stamps[100]) + 400_000, 3.0
+    streamed = truth_on_grid(bag, run_stamp, run_chainage, chunk=700)
+    whole = load_truth(bag).aligned(run_stamp, run_chainage)
+    cells = np.arange(np.ceil(whole.chainage_m[0] / 0.25 - 0.5),
+                      np.floor(whole.chainage_m[-1] / 0.25 - 0.5) + 1)
+    x = (cells + 0.5) * 0.25
+    np.testing.assert_allclose(streamed.chainage_m, x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(streamed.u_m, np.interp(x, whole.chainage_m, whole.u_m),
+                               rtol=0, atol=1e-15)
+    assert streamed.stamps_ns is None

@@ -233,8 +233,15 @@ class InputPolicy:
         plausible = finite & (np.abs(speed) <= SPEED_LIMIT_MPS)
         self._counts['odom_nan'] += int((~finite).sum())
         self._counts['odom_implausible'] += int((finite & ~plausible).sum())
-        for t, v in zip(stamps[plausible].tolist(), speed[plausible].tolist(), strict=True):
-            self._add_odometry(t, v)
+        t_ok, v_ok = stamps[plausible], speed[plausible]
+        if t_ok.size and np.all(np.diff(t_ok) > 0) and not (
+                self._odom_t.size and t_ok[0] <= self._odom_t[-1]):
+            # in order after the newest (as recorded): what the loop below appends, at once
+            self._odom_t = np.concatenate([self._odom_t, t_ok])
+            self._odom_v = np.concatenate([self._odom_v, v_ok])
+        else:
+            for t, v in zip(t_ok.tolist(), v_ok.tolist(), strict=True):
+                self._add_odometry(t, v)
         self._odometry_finding()
         return self._release(final=False)
 

@@ -20,7 +20,7 @@ from railgsa_ros.review.report import render_html
 from railgsa_ros.review.results import Review, ReviewOptions
 from railgsa_ros.review.sections import grid_sections, section_sd
 from railgsa_ros.review.stream import run_stream
-from railgsa_ros.review.truth import DX_M, compare, load_truth
+from railgsa_ros.review.truth import DX_M, check_truth, compare, truth_on_grid
 from railgsa_ros.review.worst import plot_worst, worst_surrogate
 
 REPORT = 'report.html'
@@ -37,7 +37,7 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     start = time.perf_counter()
     tick('reading', 0.0)
     limits = en13848_limits(options.config.inversion.band, options.limit_end)
-    truth = load_truth(options.truth) if options.truth is not None else None
+    truth = check_truth(options.truth) if options.truth is not None else None
     total = max(options.source.count(options.imu_topic), 1)
     run, cfg = run_stream(options.source, options.config, options.vehicle, options.dists,
                           limits, options.reference, options.rate_from_bag, options.section_m,
@@ -49,8 +49,8 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     sections = grid_sections(grid.x_m, grid.u_m, grid.valid, run.section_speeds,
                              options.section_m, grid.dx_m)
     comparison = truth_sections = None
-    if truth is not None:
-        truth = truth.aligned(*run.first)
+    if options.truth is not None:
+        truth = truth_on_grid(options.truth, *run.first) if truth is None else truth
         comparison = compare(grid.x_m[grid.valid], grid.u_m[grid.valid], truth, cfg.inversion.band)
         truth_sections = section_sd(comparison.x_m, comparison.truth_m, None, options.section_m,
                                     max_step_m=2 * DX_M)

@@ -13,6 +13,7 @@ metre of run, whatever the sample rate (10 h at 30 m/s: 1,080 km, 91 MB).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,29 +59,80 @@ class Grid:
                                                   'valid')))
 
 
-class GridBuilder:
-    """Streams samples (chainage, u, speed[, lower, upper]) into a :class:`Grid`; the last
-    sample of a chunk is kept to interpolate across chunk boundaries. The cells live in blocks
-    of BLOCK cells allocated as the run reaches them (no copies as it grows)."""
+class CellStore:
+    """Columns of per-cell values (one dtype each, NaN until set) and a validity flag, in
+    blocks of BLOCK cells allocated as the run reaches them: no copies as it grows, memory by
+    the cells reached (the review's run grid and its truth grid)."""
+
+    def __init__(self, dtypes: Sequence[type | str]) -> None:
+        self.dtypes = [np.dtype(d) for d in dtypes]
+        self._blocks: dict[int, tuple[list[np.ndarray], np.ndarray]] = {}
+
+    def put(self, cell: np.ndarray, values: Sequence[np.ndarray], valid: np.ndarray) -> None:
+        """Set cells (N,) int64 (ascending) to ``values`` (one (N,) array per column; NaN where
+        not ``valid``)."""
+        block, offset = np.divmod(cell, BLOCK)
+        cuts = np.flatnonzero(np.diff(block)) + 1
+        for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [cell.size]]),
+                          strict=True):
+            columns, ok = self._block(int(block[lo]))
+            at, good = offset[lo:hi], valid[lo:hi]
+            for column, v in zip(columns, values, strict=True):
+                column[at] = np.where(good, v[lo:hi], np.nan)
+            ok[at] = good
+
+    def _block(self, index: int) -> tuple[list[np.ndarray], np.ndarray]:
+        if index not in self._blocks:
+            self._blocks[index] = ([np.full(BLOCK, np.nan, d) for d in self.dtypes],
+                                   np.zeros(BLOCK, bool))
+        return self._blocks[index]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the cells."""
+        return sum(c.nbytes for cols, ok in self._blocks.values() for c in (*cols, ok))
+
+    def take(self) -> tuple[int, list[np.ndarray], np.ndarray]:
+        """(first cell, columns (N,), valid (N,)) from the first to the last valid cell; the
+        blocks are handed over one at a time (the store is empty afterwards: the run is held
+        once, plus one block)."""
+        valid_at = [i * BLOCK + np.flatnonzero(ok)[[0, -1]]
+                    for i, (_, ok) in sorted(self._blocks.items()) if ok.any()]
+        if not valid_at:
+            self._blocks.clear()
+            return 0, [np.zeros(0, d) for d in self.dtypes], np.zeros(0, bool)
+        first, last = int(valid_at[0][0]), int(valid_at[-1][1])
+        n = last - first + 1
+        columns = [np.full(n, np.nan, d) for d in self.dtypes]
+        valid = np.zeros(n, bool)
+        for i in sorted(self._blocks):
+            cols, ok = self._blocks.pop(i)
+            lo, hi = max(i * BLOCK, first), min((i + 1) * BLOCK, last + 1)
+            if lo < hi:
+                for out, col in zip(columns, cols, strict=True):
+                    out[lo - first:hi - first] = col[lo - i * BLOCK:hi - i * BLOCK]
+                valid[lo - first:hi - first] = ok[lo - i * BLOCK:hi - i * BLOCK]
+        return first, columns, valid
+
+
+class CellInterpolator:
+    """Streams samples (chainage, values...) to the cells of the module docstring: the last
+    sample of a chunk is kept to interpolate across chunk boundaries."""
 
     def __init__(self, dx_m: float = DX_M, max_step_m: float = MAX_STEP_M) -> None:
         self.dx_m = float(dx_m)
         self.max_step_m = float(max_step_m)
-        self._blocks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._last: tuple[float, ...] | None = None
 
-    def push(self, chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
-             lower_m: np.ndarray | None = None, upper_m: np.ndarray | None = None) -> None:
-        """Samples (K,) in emission order."""
-        if np.size(chainage_m) == 0:
-            return
-        nan = np.full(np.shape(u_m), np.nan)
-        cols = [np.asarray(chainage_m, float), np.asarray(u_m, float),
-                nan if lower_m is None else lower_m, nan if upper_m is None else upper_m,
-                np.asarray(speed_mps, float)]  # chainage, then the cells' values in order
+    def push(self, chainage_m: np.ndarray, *columns: np.ndarray
+             ) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+        """Samples (K,) in order: (cells (N,), the columns at their centres (N,) each, valid
+        (N,): less than max_step_m between the samples around it and the first column finite)."""
+        cols = [np.asarray(chainage_m, float), *(np.asarray(c, float) for c in columns)]
         if self._last is not None:
             cols = [np.concatenate([[v], c]) for v, c in zip(self._last, cols, strict=True)]
-        self._last = tuple(float(c[-1]) for c in cols)
+        if cols[0].size:
+            self._last = tuple(float(c[-1]) for c in cols)
         c = cols[0]
         lo, hi = c[:-1], c[1:]
         with np.errstate(invalid='ignore'):
@@ -88,56 +140,42 @@ class GridBuilder:
             first = np.where(ok, np.floor(lo / self.dx_m - 0.5), 0).astype(np.int64) + 1
             last = np.where(ok, np.floor(hi / self.dx_m - 0.5), 0).astype(np.int64)
         count = np.where(ok, np.maximum(last - first + 1, 0), 0)
-        if not count.any():
-            return
         pair = np.repeat(np.arange(lo.size), count)
         cell = first[pair] + (np.arange(pair.size) - np.repeat(np.cumsum(count) - count, count))
-        x = (cell + 0.5) * self.dx_m
-        t = (x - lo[pair]) / (hi[pair] - lo[pair])
+        t = ((cell + 0.5) * self.dx_m - lo[pair]) / (hi[pair] - lo[pair])
         values = [v[pair] + t * (v[pair + 1] - v[pair]) for v in cols[1:]]
         valid = ((hi - lo)[pair] < self.max_step_m) & np.isfinite(values[0])  # NaN: INVALID
-        self._store(cell, values, valid)
+        return cell, values, valid
 
-    def _store(self, cell: np.ndarray, values: list[np.ndarray], valid: np.ndarray) -> None:
-        block, offset = np.divmod(cell, BLOCK)
-        cuts = np.flatnonzero(np.diff(block)) + 1
-        for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [cell.size]]),
-                          strict=True):
-            u, f32, ok = self._block(int(block[lo]))
-            at, good = offset[lo:hi], valid[lo:hi]
-            u[at] = np.where(good, values[0][lo:hi], np.nan)
-            f32[at] = np.where(good[:, None], np.column_stack([v[lo:hi] for v in values[1:]]),
-                               np.nan)
-            ok[at] = good
 
-    def _block(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if index not in self._blocks:
-            self._blocks[index] = (np.full(BLOCK, np.nan), np.full((BLOCK, 3), np.nan,
-                                                                    np.float32),
-                                   np.zeros(BLOCK, bool))
-        return self._blocks[index]
+class GridBuilder:
+    """Streams samples (chainage, u, speed[, lower, upper]) into a :class:`Grid` (a
+    ``CellInterpolator`` into a ``CellStore``)."""
+
+    def __init__(self, dx_m: float = DX_M, max_step_m: float = MAX_STEP_M) -> None:
+        self.dx_m = float(dx_m)
+        self._cells = CellInterpolator(dx_m, max_step_m)
+        self._store = CellStore([np.float64, np.float32, np.float32, np.float32])
+
+    def push(self, chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
+             lower_m: np.ndarray | None = None, upper_m: np.ndarray | None = None) -> None:
+        """Samples (K,) in emission order."""
+        if np.size(chainage_m) == 0:
+            return
+        nan = np.full(np.shape(u_m), np.nan)
+        cell, values, valid = self._cells.push(
+            chainage_m, u_m, nan if lower_m is None else lower_m,
+            nan if upper_m is None else upper_m, speed_mps)
+        if cell.size:
+            self._store.put(cell, values, valid)
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the cells."""
-        return sum(a.nbytes for b in self._blocks.values() for a in b)
+        return self._store.nbytes
 
     def grid(self) -> Grid:
-        """The cells from the first to the last valid one; the builder's blocks are handed over
-        one at a time (the builder is empty afterwards: no second copy of the run)."""
-        if not self._blocks:
-            return Grid(self.dx_m, 0, np.zeros(0), *(np.zeros(0, np.float32) for _ in range(3)),
-                        np.zeros(0, bool))
-        lo, hi = min(self._blocks), max(self._blocks)
-        n = (hi - lo + 1) * BLOCK
-        u, f32, valid = np.full(n, np.nan), np.full((3, n), np.nan, np.float32), np.zeros(n, bool)
-        for i in range(lo, hi + 1):
-            if i in self._blocks:
-                at = slice((i - lo) * BLOCK, (i - lo + 1) * BLOCK)
-                u[at], f32[:, at], valid[at] = self._blocks[i][0], self._blocks[i][1].T, \
-                    self._blocks[i][2]
-                del self._blocks[i]
-        kept = np.flatnonzero(valid)
-        keep = slice(kept[0], kept[-1] + 1) if kept.size else slice(0, 0)
-        return Grid(self.dx_m, lo * BLOCK + (kept[0] if kept.size else 0), u[keep].copy(),
-                    *(f32[j, keep].copy() for j in range(3)), valid[keep].copy())
+        """The cells from the first to the last valid one (the builder is empty afterwards: no
+        second copy of the run)."""
+        first, (u, lower, upper, speed), valid = self._store.take()
+        return Grid(self.dx_m, first, u, lower, upper, speed, valid)
