@@ -22,6 +22,8 @@ import subprocess
 import sys
 import time
 
+from railgsa_ros.errors import ConfigError
+
 PORT_BASE = 32768
 CLI_MODULE = 'railgsa_ros.cli.main'
 NODES_PACKAGE = 'railgsa_ros.nodes'
@@ -62,6 +64,34 @@ def isolated_domain() -> Iterator[int]:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+
+
+#: ROS_DOMAIN_ID values rmw_fastrtps can use (its port formula ends at 232)
+MAX_DOMAIN_ID = 232
+
+
+def env_domain() -> int | None:
+    """``ROS_DOMAIN_ID`` of the environment, None when unset or empty; ConfigError when it is
+    not a domain id."""
+    text = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) > MAX_DOMAIN_ID:
+        raise ConfigError(f'ROS_DOMAIN_ID: {text!r} is not a domain id (0-{MAX_DOMAIN_ID})')
+    return int(text)
+
+
+@contextmanager
+def session_domain() -> Iterator[int]:
+    """The domain of a command that starts ROS processes (the demo): ``ROS_DOMAIN_ID`` when
+    set (localhost discovery for the children all the same, ``ros_env``), else a reserved one
+    (``isolated_domain``)."""
+    domain = env_domain()
+    if domain is None:
+        with isolated_domain() as reserved:
+            yield reserved
+    else:
+        yield domain
 
 
 def ros_env(base: Mapping[str, str] | None = None) -> dict[str, str]:

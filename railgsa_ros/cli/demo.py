@@ -2,8 +2,9 @@
 
 Simulate a bag, start irregularity_node and uncertainty_node as processes, replay the bag into
 them, record their outputs, review the bag offline and print where the report is with a short
-summary. Every process runs with localhost discovery in a ROS domain reserved for the demo and is
-stopped (SIGINT, then SIGTERM, then SIGKILL) when the demo ends, also on Ctrl-C or an error.
+summary. Every process runs with localhost discovery in the ROS domain of ``ROS_DOMAIN_ID`` (when
+it is unset: a domain reserved for the demo, ``system.session_domain``) and is stopped (SIGINT,
+then SIGTERM, then SIGKILL) when the demo ends, also on Ctrl-C or an error.
 """
 
 from __future__ import annotations
@@ -62,10 +63,10 @@ def last_diagnostics(bag: Path) -> dict[str, dict[str, str]]:
 def run_live(bag: Path, out: Path, duration_s: float) -> Path:
     """Record the nodes' outputs while the bag is replayed into them; returns the recording."""
     from railgsa_ros.errors import RailGsaError
-    from railgsa_ros.system import System, isolated_domain
+    from railgsa_ros.system import System, session_domain
 
     record = out / 'live_bag'
-    with isolated_domain() as domain, System(out / 'logs') as system:
+    with session_domain() as domain, System(out / 'logs') as system:
         print(f'ROS_DOMAIN_ID={domain}, localhost discovery; logs in {out / "logs"}',
               flush=True)
         recorder = system.command('record', '--out', str(record), '--topics', *LIVE_TOPICS)

@@ -2,14 +2,19 @@
 
 Each node registers tasks; every period (steady clock, so it keeps reporting when a simulated
 clock stops) the publisher calls them and sends one DiagnosticArray with a status per task named
-``"<node>: <task>"`` and the node's hardware_id. A task that raises becomes an ERROR status: the
-reporter never takes the node down.
+``"<node>: <task>"`` and the node's hardware_id (:class:`HardwareId`: the ``hardware_id``
+parameter, else the IMU's frame_id). A task that raises becomes an ERROR status: the reporter
+never takes the node down.
+
+Levels as diagnostic_msgs users expect: STALE while there is nothing to judge yet (no input has
+arrived), OK, WARN when degraded, ERROR for faults. Values are strings at full precision
+(``repr`` of floats: ``float(value)`` gives the number back).
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 import time
 from typing import Any
@@ -38,16 +43,34 @@ class Report:
 
 
 def format_value(value: object) -> str:
-    """Diagnostic values are strings: floats with 6 significant digits, the rest with str()."""
+    """Diagnostic values are strings: floats at full precision (repr: the shortest string that
+    reads back as the same float), the rest with str()."""
     if isinstance(value, (float, np.floating)):
-        return f'{float(value):.6g}'
+        return repr(float(value))
     return str(value)
 
 
-def make_status(name: str, hardware_id: str, report: Report) -> DiagnosticStatus:
+class HardwareId:
+    """The ``hardware_id`` of a node's statuses: the parameter when set, else the frame_id of
+    the newest IMU message ('' before the first)."""
+
+    def __init__(self, parameter: str) -> None:
+        self.parameter = parameter
+        self.frame_id = ''
+
+    def see(self, frame_ids: Sequence[str]) -> None:
+        """Note the frame_ids of an IMU batch (the newest one counts)."""
+        if len(frame_ids):
+            self.frame_id = str(frame_ids[-1])
+
+    def __str__(self) -> str:
+        return self.parameter or self.frame_id
+
+
+def make_status(name: str, hardware_id: object, report: Report) -> DiagnosticStatus:
     """Build a DiagnosticStatus from a Report."""
     return DiagnosticStatus(level=report.level, name=name, message=report.message,
-                            hardware_id=hardware_id,
+                            hardware_id=str(hardware_id),
                             values=[KeyValue(key=str(k), value=format_value(v))
                                     for k, v in report.values.items()])
 
@@ -94,7 +117,8 @@ class DiagnosticsPublisher:
     report (for rates).
     """
 
-    def __init__(self, node: Node, hardware_id: str, period_s: float = 1.0) -> None:
+    def __init__(self, node: Node, hardware_id: object, period_s: float = 1.0) -> None:
+        """``hardware_id``: a string or a :class:`HardwareId` (read at every report)."""
         self._node = node
         self.hardware_id = hardware_id
         self._tasks: list[tuple[str, Callable[[float], Report]]] = []
@@ -140,7 +164,10 @@ def quality_values(totals: Mapping[str, int], delta: Mapping[str, int]) -> dict[
 
 def checks_report(policy: Any) -> Report:
     """The 'input checks' task: the input policy's worst finding as level and message, every
-    finding's one-line message as a value (key = the check)."""
+    finding's one-line message as a value (key = the check); STALE before any check (no
+    input yet)."""
+    if not policy.findings:
+        return Report(STALE, 'nothing checked yet: no input')
     status = policy.status
     values = {f.key: f'{LEVEL_NAMES[f.level]}: {f.message}' for f in policy.findings}
     return Report(LEVELS[status.level], status.message, values)

@@ -22,7 +22,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
 from railgsa_ros.inverse.sanitize import REASONS
-from railgsa_ros.nodes.diagnostics import ERROR, OK, WARN, Report
+from railgsa_ros.nodes.diagnostics import OK, STALE, WARN, Report
 from railgsa_ros.nodes.imu_conversion import ImuBatch, imu_batch, odom_speed
 from railgsa_ros.nodes.qos import sensor_qos
 
@@ -130,8 +130,9 @@ class ImuIntake:
 
     def report(self, totals: Mapping[str, int], delta: Mapping[str, int], elapsed_s: float,
                expected_frame_id: str) -> Report:
-        """The 'imu input' task: ERROR without input in the period, WARN with rejections, gaps,
-        time resets or accepted wrong frames in it, else OK; totals and period deltas."""
+        """The 'imu input' task: STALE before the first message, WARN without input in the
+        period or with rejections, gaps, time resets or accepted wrong frames in it, else OK;
+        totals and period deltas."""
         values: dict[str, object] = {'topic': self.sub.topic_name,
                                      'rate_hz': delta.get('received', 0) / elapsed_s}
         for key in ('received', 'accepted', 'gap', 'reset', 'time_reset', 'bridged',
@@ -145,8 +146,10 @@ class ImuIntake:
                                         'wrong_frame_accepted') if delta.get(r, 0)}
         values['last_period'] = ', '.join(f'{k} {v}' for k, v in recent.items()) or 'clean'
         values['expected_frame_id'] = expected_frame_id
+        if totals.get('received', 0) == 0:
+            return Report(STALE, 'no IMU input yet', values)
         if delta.get('received', 0) == 0:
-            return Report(ERROR, 'no IMU input', values)
+            return Report(WARN, 'no IMU input in the last period', values)
         if recent:
             return Report(WARN, f'bad input in the last period: {values["last_period"]}', values)
         return Report(OK, 'receiving', values)

@@ -54,6 +54,7 @@ from railgsa_ros.nodes.diagnostics import (
     STALE,
     Deltas,
     DiagnosticsPublisher,
+    HardwareId,
     LatencyWindow,
     Report,
     checks_report,
@@ -119,6 +120,7 @@ class IrregularityNode(ManagedNode):
         self._speed_mps = float('nan')  # speed of the newest output, m/s
         self._intake: ImuIntake | None = None
         self._diagnostics: DiagnosticsPublisher | None = None
+        self._hardware = HardwareId('')
         self._pub: Any = None
         self._pacer: OutputPacer | None = None
         self._idle_timer: Any = None
@@ -136,6 +138,7 @@ class IrregularityNode(ManagedNode):
         build_model(values, values['noise_std_mps2'] ** 2)  # every check of the core, now
         self.policy = build_model(values)
         self._values = values
+        self._hardware.parameter = values['hardware_id']
         self._pub = self.create_lifecycle_publisher(PointStamped, 'track/irregularity',
                                                     output_qos(values['output_qos_depth']))
         msg = PointStamped()
@@ -147,7 +150,7 @@ class IrregularityNode(ManagedNode):
         """Subscriptions, the idle check and the diagnostics reporter."""
         assert self._values is not None
         self._intake = ImuIntake(self, self._values, self._on_messages, self._on_odometry)
-        self._diagnostics = DiagnosticsPublisher(self, self._values['hardware_id'])
+        self._diagnostics = DiagnosticsPublisher(self, self._hardware)
         self._diagnostics.add('imu input', self._report_input)
         self._diagnostics.add('inversion', self._report_inversion)
         self._diagnostics.add('input checks', lambda _: checks_report(self.policy))
@@ -275,6 +278,7 @@ class IrregularityNode(ManagedNode):
         if batch is not None:
             if self._first_stamp_ns < 0:
                 self._first_stamp_ns = int(batch.stamps_ns[0])
+            self._hardware.see(batch.frame_ids)
             self._unflushed = True
             held += len(batch)
             outs.append(self._guarded(lambda: self.policy.imu(
@@ -319,6 +323,14 @@ class IrregularityNode(ManagedNode):
         return out
 
     # ------------------------------------------------------------------ diagnostics
+    def describe(self) -> str:
+        """The start-up line: method, band, speed source and topics."""
+        values = self._values
+        speed = 'odom' if values['use_odom'] else f'speed_mps {values["speed_mps"]!r} m/s'
+        inputs = ['imu/data', 'odom'] if values['use_odom'] else ['imu/data']
+        return (f'{values["method"]}, band {values["band"]}, speed from {speed}: '
+                f'{self.topic_line(inputs, ["track/irregularity", "/diagnostics"])}')
+
     def counters(self) -> dict[str, int]:
         """Cumulative counts by reason over the node's life (all policies)."""
         live = [] if self.policy is None else [Counter(self.policy.counters)]

@@ -14,12 +14,12 @@ Parameter ``autostart`` (default true): ``autostart()``, called at the end of th
 constructor, walks the node to active and raises ConfigError when configuring fails; ``run`` turns
 that into exit code 2 and one line.
 Each process start gets a ``boot_id`` and a wall-clock ``started_ns`` for /diagnostics, so a
-restart is visible there.
+restart is visible there. Each activation logs one line (``describe``): method, band, topics.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 import time
 from typing import Any
 import uuid
@@ -114,6 +114,7 @@ class ManagedNode(Node):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.activate()
         self.activations += 1
+        self.get_logger().info(self.describe())
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -145,6 +146,16 @@ class ManagedNode(Node):
     def release(self) -> None:
         """Drop the model and the publishers; harmless when not configured."""
         raise NotImplementedError
+
+    def describe(self) -> str:
+        """The one line logged at each activation (the start-up line): method, band, topics."""
+        raise NotImplementedError
+
+    def topic_line(self, inputs: Sequence[str], outputs: Sequence[str]) -> str:
+        """``in, in -> out, out`` with every topic name resolved (namespace, remaps)."""
+        def names(topics: Sequence[str]) -> str:
+            return ', '.join(self.resolve_topic_name(t) for t in topics)
+        return f'{names(inputs)} -> {names(outputs)}'
 
 
 def run(factory: type[ManagedNode], args: list[str] | None = None) -> int:

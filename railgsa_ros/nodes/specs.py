@@ -53,7 +53,8 @@ NODE_SPECS = (
               choices=RELIABILITIES, read_only=True),
     ParamSpec('output_qos_depth', OUTPUT_DEPTH, 'per-sample output writer history (RELIABLE), '
               'samples', (1, 100_000), read_only=True),
-    ParamSpec('hardware_id', 'imu', 'hardware_id on /diagnostics', read_only=True),
+    ParamSpec('hardware_id', '', "hardware_id on /diagnostics ('' = the frame_id of the "
+              'IMU messages)', read_only=True),
     ParamSpec('stuck_s', 0.5, 'IMU samples repeating one value for longer than this are '
               'rejected as stuck (a frozen sensor), s; 0 = off', (0.0, 3600.0)),
     ParamSpec('backward_reset_s', 1.0, 'stamps going backwards by more than this (a looped bag, '

@@ -49,6 +49,7 @@ from railgsa_ros.nodes.diagnostics import (
     STALE,
     Deltas,
     DiagnosticsPublisher,
+    HardwareId,
     Report,
     checks_report,
     make_status,
@@ -84,7 +85,7 @@ _OWN_SPECS = tuple(s for s in UNCERTAINTY_SPECS
                    if s.name in {f.name for f in fields(UncertaintyConfig)})
 
 
-def sensitivity_message(record: Sensitivity, hardware_id: str) -> DiagnosticArray:
+def sensitivity_message(record: Sensitivity, hardware_id: object) -> DiagnosticArray:
     """track/sensitivity for one window and QoI: a status per parameter and a summary."""
     statuses = [make_status(name, hardware_id, Report(OK, record.qoi, {
         'sobol_first': record.sobol_first[i], 'sobol_total': record.sobol_total[i],
@@ -122,6 +123,7 @@ class UncertaintyNode(ManagedNode):
         self._first_stamp_ns = -1  # first IMU stamp processed since the process started
         self._intake: ImuIntake | None = None
         self._diagnostics: DiagnosticsPublisher | None = None
+        self._hardware = HardwareId('')
         self._timer: Any = None
         self._pubs: tuple[Any, ...] = ()
         self._pacer: OutputPacer | None = None
@@ -141,6 +143,7 @@ class UncertaintyNode(ManagedNode):
         self.dists = load_uncertainty(values['uncertainty_file']) if \
             values['uncertainty_file'] else table3(self.vehicle)
         self._values = values
+        self._hardware.parameter = values['hardware_id']
         self.stream = self._new_stream()
         self._pubs = (
             self.create_lifecycle_publisher(Vector3Stamped, 'track/irregularity_band',
@@ -151,10 +154,6 @@ class UncertaintyNode(ManagedNode):
         msg.header.frame_id = OUTPUT_FRAME
         self._pacer = OutputPacer(self, self._pubs[0], msg, 'vector', values['output_qos_depth'],
                                   values['flush_rate_hz'])
-        design = self.stream.design
-        self.get_logger().info(
-            f'{design.points} rule points ({self.config.rule}, order {self.config.order}, '
-            f'{design.fit}) over {", ".join(design.names)}')
 
     def activate(self) -> None:
         """The polled IMU intake, its timer and the diagnostics reporter."""
@@ -162,7 +161,7 @@ class UncertaintyNode(ManagedNode):
         self._intake = ImuIntake(self, values, on_odometry=self._on_odometry)
         self._timer = self.create_timer(values['process_period_s'], self._on_timer,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._diagnostics = DiagnosticsPublisher(self, values['hardware_id'])
+        self._diagnostics = DiagnosticsPublisher(self, self._hardware)
         self._diagnostics.add('imu input', self._report_input)
         self._diagnostics.add('uncertainty', self._report_uncertainty)
         self._diagnostics.add('input checks', lambda _: checks_report(self.stream.policy))
@@ -230,6 +229,7 @@ class UncertaintyNode(ManagedNode):
             return None
         if self._first_stamp_ns < 0:
             self._first_stamp_ns = int(batch.stamps_ns[0])
+        self._hardware.see(batch.frame_ids)
         self._unflushed = True
         held = self.stream.policy.held + len(batch)
         update = self._guarded(lambda: self.stream.imu(batch.stamps_ns, batch.accel,
@@ -264,7 +264,7 @@ class UncertaintyNode(ManagedNode):
             self._pacer.put(band.stamps_ns, np.column_stack([band.lower_m, band.mean_m,
                                                              band.upper_m]), live)
         for record in update.windows:
-            self._pubs[1].publish(sensitivity_message(record, self._values['hardware_id']))
+            self._pubs[1].publish(sensitivity_message(record, self._hardware))
             last = record.compute_s * 1e3
             self._window_ms = (last, max(self._window_ms[1], last))
         self._counts['windows'] += len(update.windows)
@@ -284,6 +284,15 @@ class UncertaintyNode(ManagedNode):
             self.stream = self._new_stream()
 
     # ------------------------------------------------------------------ diagnostics
+    def describe(self) -> str:
+        """The start-up line: method, band, the rule design and topics."""
+        inv, design = self.config.inversion, self.stream.design
+        inputs = ['imu/data', 'odom'] if self._values['use_odom'] else ['imu/data']
+        outputs = ['track/irregularity_band', 'track/sensitivity', '/diagnostics']
+        return (f'{inv.method}, band {inv.band}, {design.points} rule points '
+                f'({self.config.rule}, order {self.config.order}, {design.fit}) over '
+                f'{", ".join(design.names)}: {self.topic_line(inputs, outputs)}')
+
     def counters(self) -> dict[str, int]:
         """Cumulative counts by reason over the node's life."""
         live = [] if self.stream is None else [Counter(self.stream.counters)]
