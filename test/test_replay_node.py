@@ -274,3 +274,51 @@ def test_malformed_messages_are_counted_and_never_published(tmp_path: Path, ros_
     assert [m.linear_acceleration.z for m in got] == [float(i) for i in range(1000)
                                                       if i not in bad]
     assert 'skipped 3 malformed message(s) on /imu/data' in capfd.readouterr().err
+
+
+def test_subscriber_wait_needs_every_graph_subscriber_matched_and_settled() -> None:
+    from railgsa_ros.playback.waiting import SubscriberWait
+
+    wait = SubscriberWait(['/imu/data'], min_subscribers=1, settle_s=0.25)
+    assert not wait.update({'/imu/data': (0, 0), '/clock': (0, 0)}, 0.0)
+    assert wait.lonely == ['/imu/data']
+    # one node matched, a second one discovered in the graph but not matched yet
+    assert not wait.update({'/imu/data': (1, 2), '/clock': (0, 0)}, 0.1)
+    assert not wait.update({'/imu/data': (2, 2), '/clock': (0, 0)}, 0.2)  # matched: settle
+    assert not wait.update({'/imu/data': (2, 2), '/clock': (0, 0)}, 0.4)
+    assert wait.update({'/imu/data': (2, 2), '/clock': (0, 0)}, 0.45)
+    # a subscriber appearing during the settle time restarts it; /clock needs only the graph's
+    assert not wait.update({'/imu/data': (2, 2), '/clock': (0, 1)}, 0.5)
+    assert wait.lonely == ['/clock']
+    assert not wait.update({'/imu/data': (2, 2), '/clock': (1, 1)}, 0.6)
+    assert wait.update({'/imu/data': (2, 2), '/clock': (1, 1)}, 0.85)
+
+
+def test_cli_replay_waits_for_a_subscriber_started_after_it(tmp_path: Path, ros_context: Any,
+                                                            spin: Any, wait_for: Any) -> None:
+    """``railgsa replay BAG`` with the defaults, a subscriber started once the replay is ready
+    to play: it gets every message from the first on (without the wait it missed ~0.7 s)."""
+    written = write_rosbags(tmp_path / 'bag', 300)
+    log = tmp_path / 'replay.err'
+    with log.open('w') as err:
+        proc = subprocess.Popen([sys.executable, '-m', 'railgsa_ros.cli.main', 'replay',
+                                 str(tmp_path / 'bag')], stderr=err, text=True)
+    try:
+        assert wait_for(lambda: 'waiting up to 10 s' in log.read_text(), 30.0), log.read_text()
+        sink = Sink(ros_context, spin, {'/imu/data': imu_class()})
+        assert proc.wait(30) == 0
+        assert wait_for(lambda: len(sink.got['/imu/data']) >= 300, 5.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert sink.raws('/imu/data') == [raw for _, _, raw in written]
+    assert 'playing after' not in log.read_text()
+
+
+def test_cli_replay_no_wait_plays_at_once(tmp_path: Path, ros_domain: int) -> None:
+    write_rosbags(tmp_path / 'bag', 50)
+    proc = subprocess.run([sys.executable, '-m', 'railgsa_ros.cli.main', 'replay',
+                           str(tmp_path / 'bag'), '--no-wait'], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0 and 'waiting' not in proc.stderr
+    assert 'published 50 messages' in proc.stderr

@@ -19,6 +19,7 @@ DEMO_PROFILE = 'german-low'
 DEMO_DEFECTS = 'dip@150:len=10:depth=0.004'
 DIP = (150.0, 10.0)  # start, length (m)
 SPEED = 20.0
+RATE_HZ = 1000.0  # the simulated IMU's rate (adxl355 preset), Hz
 OUTPUTS = ('bode.png', 'live_bag', 'logs', 'review', 'simulated_bag')
 LIVE_TOPICS = ('/track/irregularity', '/track/irregularity_band', '/track/sensitivity',
                '/diagnostics')
@@ -69,7 +70,11 @@ def run_live(bag: Path, out: Path, duration_s: float) -> Path:
     with session_domain() as domain, System(out / 'logs') as system:
         print(f'ROS_DOMAIN_ID={domain}, localhost discovery; logs in {out / "logs"}',
               flush=True)
-        recorder = system.command('record', '--out', str(record), '--topics', *LIVE_TOPICS)
+        # a reader history of the whole run: the flush bursts of a loaded machine overflowed
+        # the default 1000 (562 of 9000 outputs lost at load average 12)
+        depth = int(duration_s * RATE_HZ) + 1000
+        recorder = system.command('record', '--out', str(record), '--depth', str(depth),
+                                  '--topics', *LIVE_TOPICS)
         for node in NODES:
             system.node(node)
         for topic in LIVE_TOPICS[:2]:  # both nodes are up and their outputs are subscribed
@@ -77,7 +82,7 @@ def run_live(bag: Path, out: Path, duration_s: float) -> Path:
                 raise RailGsaError(f'no publisher of {topic} after 120 s: see {out / "logs"}')
         print(f'replaying {bag} into {", ".join(NODES)} ...', flush=True)
         replay = system.command('replay', str(bag), '--topics', '/imu/data', '/odom',
-                                '--wait-for-subscribers', '30')
+                                '--wait-timeout', '30')
         if replay.wait(duration_s + 90.0) != 0:
             raise RailGsaError(f'replay failed: see {out / "logs"}')
         # the nodes' last outputs and diagnostics reach the recorder: idle_flush_s (2 s), then

@@ -6,6 +6,7 @@ import argparse
 import threading
 
 from railgsa_ros.playback.signals import stop_on_signals
+from railgsa_ros.playback.waiting import WAIT_S
 
 DEFAULT_CLOCK_HZ = 40.0
 
@@ -32,11 +33,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--clock', nargs='?', type=float, const=DEFAULT_CLOCK_HZ, default=0.0,
                    metavar='HZ', help='publish /clock at HZ of wall time for use_sim_time '
                    f'(default {DEFAULT_CLOCK_HZ:g} Hz when given)')
-    p.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='S',
-                   help='wait up to S seconds for every topic to be subscribed before playing')
+    wait = p.add_mutually_exclusive_group()
+    wait.add_argument('--wait-timeout', '--wait-for-subscribers', dest='wait_timeout',
+                      type=float, default=WAIT_S, metavar='S',
+                      help='before playing, wait up to S seconds until every topic has '
+                      '--min-subscribers and every subscriber already in the ROS graph is '
+                      f'matched, so that none misses the first messages (default {WAIT_S:g})')
+    wait.add_argument('--no-wait', dest='wait_timeout', action='store_const', const=0.0,
+                      help='play at once, without waiting for subscribers')
     p.add_argument('--min-subscribers', type=int, default=1, metavar='N',
-                   help='with --wait-for-subscribers: wait for N subscribers on every topic '
-                   '(default 1)')
+                   help='wait for N subscribers on every played topic (default 1)')
     p.add_argument('--reliable', action='store_true',
                    help='publish every topic RELIABLE with a history of 10 s at the replay rate '
                    '(for faster-than-real-time replays into reliable subscribers)')
@@ -51,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
         values = {'bag_path': args.bag, 'rate': args.rate, 'loop': args.loop,
                   'start_offset': args.start, 'duration': args.duration, 'clock_hz': args.clock,
-                  'wait_for_subscribers': args.wait_for_subscribers,
+                  'wait_for_subscribers': args.wait_timeout,
                   'min_subscribers': args.min_subscribers, 'reliable': args.reliable}
         values.update({k: v for k, v in (('topics', args.topics), ('remaps', args.remap)) if v})
         return bag_replay_node.run(args=[], parameters=values, stop=stop)

@@ -4,8 +4,9 @@ Parameters (all fixed at start-up): ``bag_path``, ``rate`` (x real time), ``loop
 ``start_offset`` and ``duration`` (s of bag time; duration 0 = to the end), ``topics`` (string
 array, empty = all), ``remaps`` (string array of ``FROM:=TO``), ``clock_hz`` (publish
 rosgraph_msgs/Clock on /clock at this wall-clock rate, 0 = off), ``wait_for_subscribers`` (s to
-wait for every topic to be subscribed before playing, 0 = start at once), ``min_subscribers``
-(the number of subscribers each topic waits for) and ``reliable`` (publish
+wait at most for the subscribers before playing, default ``playback.waiting.WAIT_S``; 0 =
+start at once), ``min_subscribers`` (the number of subscribers each played topic
+waits for) and ``reliable`` (publish
 every topic RELIABLE with a deep history, railgsa_ros.qos.replay, and wait up to ACK_TIMEOUT_S at
 the end until every subscriber acknowledged every message, as ``ros2 bag play
 --wait-for-all-acked``: a writer that is gone resends nothing). Topics whose type this
@@ -31,6 +32,7 @@ from builtin_interfaces.msg import Time
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSCompatibility, qos_check_compatible
 from rosgraph_msgs.msg import Clock
 
 from railgsa_ros import qos
@@ -50,6 +52,7 @@ from railgsa_ros.playback.schedule import (
     window,
 )
 from railgsa_ros.playback.source import BagSource
+from railgsa_ros.playback.waiting import WAIT_S, SubscriberWait
 
 NAME = 'bag_replay_node'
 SPECS = (
@@ -62,8 +65,9 @@ SPECS = (
               read_only=True),
     ParamSpec('clock_hz', 0.0, '/clock publication rate (Hz of wall time), 0 = no /clock',
               bounds=(0.0, 1e4), read_only=True),
-    ParamSpec('wait_for_subscribers', 0.0, 'wait up to this long (s) for every topic to have a '
-              'subscriber before playing', bounds=(0.0, 3600.0), read_only=True),
+    ParamSpec('wait_for_subscribers', WAIT_S, 'wait up to this long (s) until every played topic '
+              'has min_subscribers and every subscriber in the graph is matched, 0 = play at '
+              'once', bounds=(0.0, 3600.0), read_only=True),
     ParamSpec('min_subscribers', 1, 'with wait_for_subscribers: the subscribers every topic '
               'waits for', bounds=(1, 1000), read_only=True),
     ParamSpec('reliable', False, 'publish every topic RELIABLE, with a history of 10 s at the '
@@ -145,20 +149,32 @@ class BagReplayNode(Node):
         self.window = window(self.source.start_ns, self.source.end_ns, self.options)
 
     def _wait_for_subscribers(self) -> None:
-        """Wait up to ``wait_for_subscribers`` s until every topic (and /clock) has
-        ``min_subscribers`` subscribers."""
-        deadline = time.monotonic() + self.wait_s
+        """Wait up to ``wait_for_subscribers`` s until the subscribers there are matched
+        (``playback.waiting.SubscriberWait``: every played topic with ``min_subscribers``, every
+        compatible subscription of the graph, /clock's included, matched); warn when not."""
         pubs = dict(self.publishers_by_topic)
         if self.clock_pub is not None:
             pubs['/clock'] = self.clock_pub
-        lonely = list(pubs)
-        while lonely and time.monotonic() < deadline and self._running():
-            lonely = [t for t in lonely
-                      if pubs[t].get_subscription_count() < self.min_subscribers]
+        self.get_logger().info(f'waiting up to {self.wait_s:g} s for the subscribers of '
+                               f'{", ".join(pubs)}')
+        wait = SubscriberWait(self.publishers_by_topic, self.min_subscribers)
+        deadline = time.monotonic() + self.wait_s
+        while self._running() and time.monotonic() < deadline:
+            if wait.update({t: (pub.get_subscription_count(), self._graph_subscribers(t, pub))
+                            for t, pub in pubs.items()}, time.monotonic()):
+                return
             time.sleep(0.01)
-        if lonely and self._running():
-            self.get_logger().warning(f'playing with fewer than {self.min_subscribers} '
-                                      f'subscribers on {", ".join(lonely)}')
+        if self._running():
+            self.get_logger().warning(
+                f'playing after {self.wait_s:g} s without every subscriber matched '
+                f'({self.min_subscribers} or more per topic): '
+                f'{", ".join(wait.lonely) or "counts still changing"}')
+
+    def _graph_subscribers(self, topic: str, pub: Any) -> int:
+        """Subscriptions of ``topic`` in the ROS graph whose QoS can match ``pub``'s."""
+        return sum(qos_check_compatible(pub.qos_profile, info.qos_profile)[0]
+                   != QoSCompatibility.ERROR
+                   for info in self.get_subscriptions_info_by_topic(topic))
 
     def play(self) -> int:
         """Replay until the end (never with loop), ``stop()`` or shutdown; returns the number of
