@@ -30,6 +30,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     python_requires='>=3.11',
     install_requires=['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'matplotlib>=3.7',

@@ -6,6 +6,7 @@ from collections.abc import Collection, Iterable, Mapping
 from difflib import get_close_matches
 import math
 from pathlib import Path
+import re
 from typing import Any
 
 import yaml
@@ -53,13 +54,14 @@ ROS_BUILTIN_PARAMETERS = frozenset({'use_sim_time'})
 
 def ros_parameters(doc: Any, node_name: str, known: Collection[str] | None = None,
                    source: str = 'parameters', *, refused: Mapping[str, str] | None = None,
-                   shared_known: Collection[str] | None = None, required: bool = True
-                   ) -> dict[str, Any]:
+                   shared_known: Collection[str] | None = None, required: bool = True,
+                   namespace: str | None = None) -> dict[str, Any]:
     """The parameters a ROS params file gives node ``node_name``; strict, one-line errors.
 
     Sections that apply (ROS semantics, merged in file order): ``node_name``, ``/node_name``,
     ``/<namespace>/node_name``, ``/**/node_name`` and ``/**``; other sections configure other
-    nodes and are skipped.
+    nodes and are skipped. With ``namespace`` (a node started in it, ``/`` for the root) the
+    sections are matched as rcl does (``section_applies``).
     Each section must be ``{ros__parameters: {...}}``. ConfigError naming ``source`` when the
     file is not such a mapping, when no section applies (``required``; else ``{}``), for a key
     in ``refused`` (its message says what to do instead) and, when ``known`` is given, for a key
@@ -76,7 +78,7 @@ def ros_parameters(doc: Any, node_name: str, known: Collection[str] | None = Non
     shared: set[str] = set()  # names set only by /** sections
     found = False
     for key, section in doc.items():
-        if not section_applies(key, node_name):
+        if not section_applies(key, node_name, namespace):
             continue
         if not isinstance(section, dict) or set(section) != {'ros__parameters'} or \
                 not isinstance(section['ros__parameters'], (dict, type(None))):
@@ -108,10 +110,17 @@ def ros_parameters(doc: Any, node_name: str, known: Collection[str] | None = Non
             if k not in ROS_BUILTIN_PARAMETERS and (known is None or k in known)}
 
 
-def section_applies(key: Any, node_name: str) -> bool:
-    """Whether params-file section ``key`` configures node ``node_name``."""
+def section_applies(key: Any, node_name: str, namespace: str | None = None) -> bool:
+    """Whether params-file section ``key`` configures node ``node_name``: any section naming it
+    (``/<anything>/node_name``) or ``/**``; with ``namespace``, as rcl matches the fully
+    qualified name ``<namespace>/<node_name>`` (a key without a leading ``/`` is in the root
+    namespace, ``*`` is one name, ``**`` any number of them)."""
     if not isinstance(key, str):
         return False
+    if namespace is not None:
+        pattern = ''.join('(/[^/]+)*' if part == '**' else '/[^/]+' if part == '*'
+                          else '/' + re.escape(part) for part in key.strip('/').split('/'))
+        return re.fullmatch(pattern, f'{namespace.rstrip("/")}/{node_name}') is not None
     return key in (node_name, '/**') or (key.startswith('/') and key.rsplit('/', 1)[-1] == \
         node_name)
 

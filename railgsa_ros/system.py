@@ -20,6 +20,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 
 from railgsa_ros.errors import ConfigError
@@ -114,31 +115,38 @@ class NodeResult:
 
 
 class NodeProcess:
-    """``python -m <module> <args>``; stdout/stderr go to ``<logdir>/<name>-<ns>.out|.err``."""
+    """``python -m <module> <args>``; stdout/stderr go to ``<logdir>/<name>-<ns>.out|.err``, or
+    to this process's own when ``logdir`` is None (``railgsa run``: the nodes' lines on the
+    terminal; ``output`` is then empty)."""
 
-    def __init__(self, module: str, args: list[str], logdir: Path, name: str | None = None,
-                 cwd: Path | None = None) -> None:
-        logdir.mkdir(parents=True, exist_ok=True)
+    def __init__(self, module: str, args: list[str], logdir: Path | None,
+                 name: str | None = None, cwd: Path | None = None) -> None:
         self.name = name or module.rsplit('.', 1)[-1]
-        stem = f'{self.name}-{time.monotonic_ns()}'
-        self.out_path, self.err_path = logdir / f'{stem}.out', logdir / f'{stem}.err'
-        fds = [os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-               for p in (self.out_path, self.err_path)]
+        self.out_path = self.err_path = None
+        fds: list[int | None] = [None, None]
+        if logdir is not None:
+            logdir.mkdir(parents=True, exist_ok=True)
+            stem = f'{self.name}-{time.monotonic_ns()}'
+            self.out_path, self.err_path = logdir / f'{stem}.out', logdir / f'{stem}.err'
+            fds = [os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+                   for p in (self.out_path, self.err_path)]
         try:
             self.proc = subprocess.Popen([sys.executable, '-m', module, *args], stdout=fds[0],
                                          stderr=fds[1], cwd=cwd, env=ros_env(),
                                          stdin=subprocess.DEVNULL)
         finally:
             for fd in fds:
-                os.close(fd)
+                if fd is not None:
+                    os.close(fd)
 
     def running(self) -> bool:
         """Whether the process is still alive."""
         return self.proc.poll() is None
 
     def output(self) -> str:
-        """Everything written so far, stdout then stderr."""
-        return '\n'.join(p.read_text('utf-8', 'replace') for p in (self.out_path, self.err_path))
+        """Everything written so far, stdout then stderr ('' without log files)."""
+        return '\n'.join(p.read_text('utf-8', 'replace') for p in (self.out_path, self.err_path)
+                         if p is not None)
 
     def wait_for_line(self, pattern: str, timeout: float, period: float = 0.05) -> bool:
         """Wait until a line of the output matches the regex ``pattern`` (True), the process
@@ -171,16 +179,18 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 continue
         rc = self.proc.wait()
-        return NodeResult(rc, self.out_path.read_text('utf-8', 'replace'),
-                          self.err_path.read_text('utf-8', 'replace'))
+        out, err = (p.read_text('utf-8', 'replace') if p is not None else ''
+                    for p in (self.out_path, self.err_path))
+        return NodeResult(rc, out, err)
 
 
 class System:
     """The processes of one run: nodes and ``railgsa`` commands, all stopped (newest first) when
     the ``with`` block ends, also on an error or Ctrl-C."""
 
-    def __init__(self, logdir: Path, cwd: Path | None = None) -> None:
-        self.logdir, self.cwd = Path(logdir), cwd
+    def __init__(self, logdir: Path | None, cwd: Path | None = None) -> None:
+        """``logdir``: where each process's output goes (None: this process's stdout/stderr)."""
+        self.logdir, self.cwd = None if logdir is None else Path(logdir), cwd
         self.processes: list[NodeProcess] = []
 
     def node(self, node: str, ros_args: list[str] | None = None) -> NodeProcess:
@@ -195,6 +205,14 @@ class System:
         proc = NodeProcess(module, args, self.logdir, name, self.cwd)
         self.processes.append(proc)
         return proc
+
+    def watch(self, stop: threading.Event, period_s: float = 0.1) -> NodeProcess | None:
+        """Wait until ``stop`` is set (None) or a process ends (that process)."""
+        while not stop.wait(period_s):
+            ended = next((p for p in self.processes if not p.running()), None)
+            if ended is not None:
+                return ended
+        return None
 
     def stop(self) -> dict[str, NodeResult]:
         """Stop every process still running, newest first; name -> result (last of a name)."""
