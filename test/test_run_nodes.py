@@ -70,6 +70,23 @@ def test_bad_params_file_is_one_line_exit_2_before_anything_starts(
     assert time.monotonic() - started < 10  # refused at once, no node started
 
 
+@pytest.mark.ros
+def test_a_namespaced_node_refuses_a_section_rcl_would_ignore(tmp_path: Path) -> None:
+    """``ros2 launch ... namespace:=train1`` with a bare ``irregularity_node:`` section: rcl
+    would run the node on its defaults; the node's own check refuses the file."""
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.nodes.params import check_params_files
+    from railgsa_ros.nodes.specs import ALL_PARAMETER_NAMES
+
+    bare = write(tmp_path, 'irregularity_node:\n  ros__parameters:\n    band: d2\n')
+    args = ['--ros-args', '-r', '__ns:=/train1', '--params-file', str(bare)]
+    with pytest.raises(ConfigError, match='no section for node irregularity_node'):
+        check_params_files(args, 'irregularity_node', {'band'}, ALL_PARAMETER_NAMES)
+    check_params_files(args[3:], 'irregularity_node', {'band'}, ALL_PARAMETER_NAMES)  # root
+    bare.write_text('/**/irregularity_node:\n  ros__parameters:\n    band: d2\n')
+    check_params_files(args, 'irregularity_node', {'band'}, ALL_PARAMETER_NAMES)
+
+
 def test_namespace_is_checked() -> None:
     from railgsa_ros.cli.run import namespace_of
     from railgsa_ros.errors import ConfigError

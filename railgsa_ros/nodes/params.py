@@ -138,12 +138,17 @@ def check_params_files(argv: Sequence[str], node_name: str, known: Collection[st
     """ConfigError naming the file for each ``--params-file`` of ``argv`` that is missing or
     malformed, has no section for the node (its name, or ``__node:=`` / ``__name:=`` remapped)
     or sets a parameter outside ``known`` (``/**`` sections: outside ``shared_known``, the
-    names of every railgsa node)."""
+    names of every railgsa node). With ``__ns:=`` the sections are matched as rcl does for that
+    namespace (a bare ``<node>:`` section, root-only, does not count)."""
+    namespace = None
     for remap in ros_arg_values(argv, ('-r', '--remap')):
         rule, _, value = remap.partition(':=')
         if rule in ('__node', '__name') and value:
             node_name = value
+        elif rule == '__ns' and value:
+            namespace = '/' + value.strip('/')
     for path in ros_arg_values(argv, ('--params-file',)):
         if not path:
             raise ConfigError('--params-file: no file given')
-        ros_parameters(load_yaml(path), node_name, known, path, shared_known=shared_known)
+        ros_parameters(load_yaml(path), node_name, known, path, shared_known=shared_known,
+                       namespace=namespace)
