@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import ast
 from pathlib import Path
-import re
 import signal
 import subprocess
 import sys
@@ -113,25 +112,59 @@ def startup_lines(log: Path) -> dict[str, list[str]]:
 
 
 @pytest.mark.ros
-def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(tmp_path: Path,
-                                                                  wait_for: Any) -> None:
-    params = write(tmp_path, '/**:\n  ros__parameters:\n    band: d2\n    method: kalman\n'
-                             '/**/uncertainty_node:\n  ros__parameters:\n    rule: pem3\n'
-                             '    order: 1\n')
+def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
+        tmp_path: Path, ros_context: Any, spin: Any, wait_for: Any) -> None:
+    """One params file, namespace train1: each node logs one start-up line with the file's
+    values, both publish exactly the stamps of the IMU samples sent (same values: one to one),
+    and SIGTERM to ``railgsa run`` ends everything with exit 0."""
+    from geometry_msgs.msg import PointStamped, Vector3Stamped
+    import numpy as np
+    from rclpy.node import Node
+    from sensor_msgs.msg import Imu
+
+    from railgsa_ros.nodes.qos import output_qos, sensor_qos
+
+    params = write(tmp_path, '/**:\n  ros__parameters:\n    use_odom: false\n'
+                             '    speed_mps: 40.0\n    min_design_speed_mps: 40.0\n'
+                             '    idle_flush_s: 0.5\n/**/uncertainty_node:\n  ros__parameters:\n'
+                             '    rule: pem3\n    order: 1\n')
+    test = Node('run_test', namespace='train1', context=ros_context)
+    got: dict[str, list[int]] = {'u': [], 'band': []}
+    for key, cls, topic in (('u', PointStamped, 'track/irregularity'),
+                            ('band', Vector3Stamped, 'track/irregularity_band')):
+        test.create_subscription(cls, topic, lambda m, k=key: got[k].append(
+            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), output_qos(5000))
+    imu = test.create_publisher(Imu, 'imu/data', sensor_qos())
+    spin(test)
     proc, log = start_run(tmp_path, '--params', str(params), '--namespace', 'train1')
     try:
         assert wait_for(lambda: all(startup_lines(log).values()) or proc.poll() is not None,
                         90.0), log.read_text()
-        time.sleep(0.5)  # nothing more is logged at start-up
         lines = startup_lines(log)
-        assert [len(lines[n]) for n in NODES] == [1, 1], lines
         for node, outputs in zip(NODES, ('/train1/track/irregularity, /diagnostics',
                                          '/train1/track/irregularity_band, /train1/track/'
                                          'sensitivity, /diagnostics'), strict=True):
             line = lines[node][0]
-            assert 'kalman, band d2' in line, line
-            assert f'/train1/imu/data, /train1/odom -> {outputs}' in line, line
+            assert 'spectral, band d1' in line and f'/train1/imu/data -> {outputs}' in line
+        assert 'speed from speed_mps 40.0 m/s' in lines['irregularity_node'][0]
         assert '(pem3, order 1,' in lines['uncertainty_node'][0]
+        assert wait_for(lambda: imu.get_subscription_count() >= 2, 30.0)
+        time.sleep(1.0)  # the readers' side of the match (a BEST_EFFORT reader drops before)
+        stamps = 1_700_000_000 * 10**9 + np.arange(1500) * 1_000_000
+        accel = 9.80665 + 0.05 * np.random.default_rng(0).standard_normal(stamps.size)
+        for k, (stamp, a) in enumerate(zip(stamps.tolist(), accel.tolist(), strict=True)):
+            msg = Imu()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+            msg.header.frame_id = 'imu_link'
+            msg.linear_acceleration.z = a
+            imu.publish(msg)
+            if k % 50 == 49:
+                time.sleep(0.05)
+        # idle_flush_s after the last sample both nodes flush: every sample gets its output
+        assert wait_for(lambda: min(map(len, got.values())) >= stamps.size, 30.0), \
+            {k: len(v) for k, v in got.items()}
+        assert got['u'] == got['band'] == stamps.tolist()
+        assert [len(ls) for ls in startup_lines(log).values()] == [1, 1], log.read_text()
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(60) == 0, log.read_text()
     finally:
@@ -140,23 +173,38 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(tmp_path: Path
     assert 'Traceback' not in log.read_text()
 
 
-@pytest.mark.ros
-def test_run_exits_non_zero_when_a_node_dies(tmp_path: Path, wait_for: Any) -> None:
-    proc, log = start_run(tmp_path)
-    try:
-        assert wait_for(lambda: startup_lines(log)['uncertainty_node'] or
-                        proc.poll() is not None, 90.0), log.read_text()
-        children = Path(f'/proc/{proc.pid}/task/{proc.pid}/children').read_text().split()
-        victim = next(int(pid) for pid in children
-                      if b'uncertainty_node' in Path(f'/proc/{pid}/cmdline').read_bytes())
-        subprocess.run(['kill', '-KILL', str(victim)], check=True)
-        rc = proc.wait(60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert rc != 0
-    assert re.search(r'^error: uncertainty_node exited with code -9: stopped the others$',
-                     log.read_text(), re.MULTILINE), log.read_text()
+FAKE_NODE = """import signal, sys, time
+signal.signal(signal.SIGINT, lambda *_: sys.exit(0))
+print('up', flush=True)
+time.sleep({life})
+sys.exit(3)
+"""
+
+
+def test_run_stops_the_others_and_exits_non_zero_when_a_node_dies(
+        tmp_path: Path, monkeypatch: Any, capsys: Any) -> None:
+    """The supervision of ``railgsa run`` with stand-in node processes (no ROS: the real nodes
+    are test_run_starts_both_nodes_...): uncertainty_node exits 3 after 0.5 s, the other is
+    stopped with SIGINT (its exit 0) and ``railgsa run`` exits 3 with one line."""
+    from railgsa_ros import system
+
+    package = tmp_path / 'fake_nodes'
+    package.mkdir()
+    (package / '__init__.py').write_text('')
+    (package / 'irregularity_node.py').write_text(FAKE_NODE.format(life=60))
+    (package / 'uncertainty_node.py').write_text(FAKE_NODE.format(life=0.5))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(system, 'NODES_PACKAGE', 'fake_nodes')
+    stopped: list[int] = []
+    stop = system.NodeProcess.stop
+    monkeypatch.setattr(system.NodeProcess, 'stop', lambda self, *a, **k: stopped.append(
+        (result := stop(self, *a, **k)).rc) or result)
+    started = time.monotonic()
+    assert main(['run']) == 3
+    assert time.monotonic() - started < 30
+    assert capsys.readouterr().err == ('error: uncertainty_node exited with code 3: stopped '
+                                       'the others\n')
+    assert set(stopped) == {0, 3}  # the other node ended by our SIGINT, exit 0
 
 
 # ---------------------------------------------------------------------------- the launch file
