@@ -95,12 +95,14 @@ def session_domain() -> Iterator[int]:
         yield domain
 
 
-def ros_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """The environment of a child: ``base`` (default os.environ), localhost discovery, unbuffered
-    Python output (readiness lines arrive at once)."""
+def ros_env(base: Mapping[str, str] | None = None, localhost: bool = True) -> dict[str, str]:
+    """The environment of a child: ``base`` (default os.environ), localhost discovery (unless
+    ``localhost`` is false: the user's own discovery settings, for ``railgsa run`` on a train),
+    unbuffered Python output (readiness lines arrive at once)."""
     env = dict(os.environ if base is None else base)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env.pop('ROS_LOCALHOST_ONLY', None)
+    if localhost:
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        env.pop('ROS_LOCALHOST_ONLY', None)
     env['PYTHONUNBUFFERED'] = '1'
     return env
 
@@ -120,7 +122,8 @@ class NodeProcess:
     terminal; ``output`` is then empty)."""
 
     def __init__(self, module: str, args: list[str], logdir: Path | None,
-                 name: str | None = None, cwd: Path | None = None) -> None:
+                 name: str | None = None, cwd: Path | None = None,
+                 localhost: bool = True) -> None:
         self.name = name or module.rsplit('.', 1)[-1]
         self.out_path = self.err_path = None
         fds: list[int | None] = [None, None]
@@ -132,7 +135,7 @@ class NodeProcess:
                    for p in (self.out_path, self.err_path)]
         try:
             self.proc = subprocess.Popen([sys.executable, '-m', module, *args], stdout=fds[0],
-                                         stderr=fds[1], cwd=cwd, env=ros_env(),
+                                         stderr=fds[1], cwd=cwd, env=ros_env(localhost=localhost),
                                          stdin=subprocess.DEVNULL)
         finally:
             for fd in fds:
@@ -188,9 +191,12 @@ class System:
     """The processes of one run: nodes and ``railgsa`` commands, all stopped (newest first) when
     the ``with`` block ends, also on an error or Ctrl-C."""
 
-    def __init__(self, logdir: Path | None, cwd: Path | None = None) -> None:
-        """``logdir``: where each process's output goes (None: this process's stdout/stderr)."""
+    def __init__(self, logdir: Path | None, cwd: Path | None = None,
+                 localhost: bool = True) -> None:
+        """``logdir``: where each process's output goes (None: this process's stdout/stderr);
+        ``localhost``: force localhost discovery (see ``ros_env``)."""
         self.logdir, self.cwd = None if logdir is None else Path(logdir), cwd
+        self.localhost = localhost
         self.processes: list[NodeProcess] = []
 
     def node(self, node: str, ros_args: list[str] | None = None) -> NodeProcess:
@@ -202,7 +208,7 @@ class System:
         return self._start(CLI_MODULE, list(args), f'railgsa-{args[0]}')
 
     def _start(self, module: str, args: list[str], name: str) -> NodeProcess:
-        proc = NodeProcess(module, args, self.logdir, name, self.cwd)
+        proc = NodeProcess(module, args, self.logdir, name, self.cwd, self.localhost)
         self.processes.append(proc)
         return proc
 

@@ -7,7 +7,8 @@ namespace), with the nodes' own names and the core's checks of the values; and b
 get the same value of every parameter that decides their outputs (inversion, vehicle, input
 policy, idle flush), or the band stamps would not be those of track/irregularity. Any problem
 is one line, exit 2, before anything starts. Then the nodes run as child processes
-(``system.System``, localhost discovery as every process this package starts); SIGINT and
+(``system.System``) in the environment's ROS domain and discovery range (ROS_DOMAIN_ID,
+ROS_AUTOMATIC_DISCOVERY_RANGE: a deployment talks to the train's other computers); SIGINT and
 SIGTERM are forwarded to them (nodes first, then the recorder, so that it gets their last
 outputs); a node that exits on its own stops the others and makes the exit code non-zero.
 """
@@ -142,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     stop, received = threading.Event(), []
     previous = forward_signals(stop, received)
     try:
-        with System(None) as system:
+        with System(None, localhost=False) as system:
             if args.record:
                 system.command('record', '--out', args.record, '--topics',
                                *record_topics(namespace))
