@@ -27,7 +27,7 @@ from sensor_msgs.msg import Imu
 from railgsa_ros.bag import RunEncoder
 from railgsa_ros.imu import PRESETS
 from railgsa_ros.nodes import console_main
-from railgsa_ros.nodes.diagnostics import OK, WARN, DiagnosticsPublisher, Report
+from railgsa_ros.nodes.diagnostics import OK, STALE, DiagnosticsPublisher, Report
 from railgsa_ros.nodes.params import ParamSpec, declare
 from railgsa_ros.nodes.process import run_node
 from railgsa_ros.nodes.qos import output_qos, sensor_qos
@@ -113,7 +113,7 @@ class ImuSimNode(Node):
         if self.published == len(self.encoder):
             return Report(OK, 'run finished', values)
         if self.offset_ns is None:
-            return Report(WARN, 'waiting for the clock (use_sim_time without /clock)', values)
+            return Report(STALE, 'waiting for the clock (use_sim_time without /clock)', values)
         return Report(OK, 'publishing', values)
 
 
