@@ -4,6 +4,7 @@ install; parsed, launch is not installable here), both from one params file."""
 from __future__ import annotations
 
 import ast
+import os
 from pathlib import Path
 import signal
 import subprocess
@@ -250,3 +251,19 @@ def test_launch_file_starts_both_nodes_from_one_params_file(monkeypatch: Any) ->
     assert 'config/railgsa.yaml' in data['share/railgsa_ros/config']
     scripts = {s.split('=')[0].strip() for s in kwargs['entry_points']['console_scripts']}
     assert set(nodes) <= scripts  # ros2 run / launch find them in lib/railgsa_ros
+
+
+def test_demo_domain_is_ros_domain_id_when_set_else_a_reserved_one(monkeypatch: Any) -> None:
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.system import session_domain
+
+    monkeypatch.setenv('ROS_DOMAIN_ID', '42')
+    with session_domain() as domain:
+        assert domain == 42
+    monkeypatch.delenv('ROS_DOMAIN_ID')
+    with session_domain() as domain:
+        assert 1 <= domain <= 100 and str(domain) == os.environ['ROS_DOMAIN_ID']
+    assert 'ROS_DOMAIN_ID' not in os.environ  # restored
+    monkeypatch.setenv('ROS_DOMAIN_ID', 'train')
+    with pytest.raises(ConfigError, match="ROS_DOMAIN_ID: 'train' is not a domain id"):
+        session_domain().__enter__()
