@@ -30,7 +30,14 @@ from railgsa_ros.errors import InputError
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.location import Location, Reference, gnss_pass
-from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream
+from railgsa_ros.samples import split
+from railgsa_ros.uncertainty import (
+    Band,
+    Sensitivity,
+    UncertaintyConfig,
+    UncertaintyStream,
+    Update,
+)
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import VehicleParams
 
@@ -90,6 +97,21 @@ class Step:
     def __len__(self) -> int:
         return int(self.stamps_ns.size)
 
+    @classmethod
+    def of(cls, nominal: Output, band: Band | None = None, bank_u_m: np.ndarray | None = None,
+           sensor_std_m: np.ndarray | None = None) -> Step:
+        """The Step of nominal outputs (with their band, bank outputs and sensor std)."""
+        return cls(nominal.stamps_ns, nominal.chainage_m, nominal.u_m,
+                   _given(nominal.speed_mps), _given(nominal.quality), band, bank_u_m,
+                   sensor_std_m)
+
+
+def _given(values: np.ndarray | None) -> np.ndarray:
+    """A column the policy always fills (None only in outputs built by hand)."""
+    if values is None:
+        raise AssertionError('a policy output without speed or quality')
+    return values
+
 
 class Driver:
     """Chunks of a bag in, Steps out: the nominal policy and, with ``dists``, the uncertainty
@@ -108,7 +130,7 @@ class Driver:
         self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True)
                      if dists is not None else None)
         self.speed_scale = float(speed_scale)
-        self._pending: list[Output] = []  # nominal samples awaiting a band
+        self._pending = Output.concat([])  # nominal samples awaiting a band
 
     @property
     def counters(self) -> dict[str, int]:
@@ -122,7 +144,8 @@ class Driver:
 
     def push(self, piece: ImuStream) -> Step:
         """One piece of the bag: the samples that came out (maybe none)."""
-        outs, updates = [], []
+        outs: list[Output] = []
+        updates: list[Update] = []
         if self.options.use_odom and piece.odom_stamps_ns.size:
             odometry = (piece.odom_stamps_ns, piece.speed_mps * self.speed_scale)
             outs.append(self.nominal.odometry(*odometry))
@@ -144,43 +167,24 @@ class Driver:
         """The sensitivity records of the closed windows (after ``flush``: all of them)."""
         return self.bank.analyze_deferred() if self.bank is not None else []
 
-    def _join(self, outs: list[Output], updates: list) -> Step:
-        self._pending += [o for o in outs if len(o)]
-        waiting = sum(len(o) for o in self._pending)
-        band = Band.concat([u.band for u in updates]) if updates else None
-        ready = waiting if self.bank is None else (0 if band is None else len(band))
-        if ready > waiting:
+    def _join(self, outs: list[Output], updates: list[Update]) -> Step:
+        """The pending nominal samples that have their band (all of them without a bank)."""
+        self._pending = Output.concat([self._pending, *outs])
+        if self.bank is None:
+            ready, self._pending = self._pending, Output.concat([])
+            return Step.of(ready)
+        band = Band.concat([u.band for u in updates])
+        if len(band) > len(self._pending):
             raise AssertionError('band samples without irregularity samples')
-        nominal = _take(self._pending, ready)
-        if self.bank is None or ready == 0:
-            return Step(*nominal)
-        if not (np.array_equal(band.stamps_ns, nominal[0])
-                and np.array_equal(band.quality, nominal[4])):
+        ready, self._pending = split(self._pending, len(band))
+        if not (np.array_equal(band.stamps_ns, ready.stamps_ns) and band.quality is not None
+                and np.array_equal(band.quality, ready.graded)):
             raise AssertionError('band and irregularity samples differ')
+        if not len(band):
+            return Step.of(ready)
         bank_u = np.concatenate([u.bank_u_m for u in updates], axis=1)
         sensor = np.concatenate([u.sensor_std_m for u in updates])
-        return Step(*nominal, band, bank_u, sensor)
-
-
-def _take(pending: list[Output], count: int) -> tuple[np.ndarray, ...]:
-    """The first ``count`` pending samples (stamps, chainage, u, speed, quality), removed from
-    ``pending``."""
-    fields = ('stamps_ns', 'chainage_m', 'u_m', 'speed_mps', 'quality')
-    parts: list[tuple[np.ndarray, ...]] = []
-    while count > 0:
-        out = pending[0]
-        n = min(count, len(out))
-        parts.append(tuple(getattr(out, f)[:n] for f in fields))
-        if n == len(out):
-            pending.pop(0)
-        else:
-            pending[0] = Output(*(getattr(out, f)[n:] for f in
-                                  ('stamps_ns', 'chainage_m', 'u_m', 'quality', 'speed_mps')))
-        count -= n
-    if not parts:
-        return (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0),
-                np.zeros(0, np.uint8))
-    return tuple(np.concatenate(cols) for cols in zip(*parts, strict=True))
+        return Step.of(ready, band, bank_u, sensor)
 
 
 def steps(driver: Driver, pieces: Iterable[ImuStream],

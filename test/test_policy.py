@@ -13,10 +13,10 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.policy import ERROR, OK, WARN, InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
+from railgsa_ros.samples import pieces
 from railgsa_ros.scenario import run_scenario
 
 ODOM_EVERY = 20  # odometry at 50 Hz next to a 1 kHz IMU
-CHUNK = 65536
 NO_DROPOUTS = imu_spec('adxl355', dropout_fraction=0.0)  # the tests make their own gaps
 
 
@@ -39,8 +39,7 @@ def offline(run, policy: InputPolicy, odom=True) -> Output:
     if odom:
         outs.append(policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY]))
     cov = _covariance(run)
-    for lo in range(0, run.stamps_ns.size, CHUNK):
-        sl = slice(lo, lo + CHUNK)
+    for sl in pieces(run.stamps_ns.size):
         outs.append(policy.imu(run.stamps_ns[sl], run.accel[sl], None, cov[sl]))
     outs.append(policy.flush())
     return Output.concat(outs)

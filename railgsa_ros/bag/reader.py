@@ -45,6 +45,7 @@ from railgsa_ros.bag.messages import (
 )
 from railgsa_ros.config import load_yaml
 from railgsa_ros.errors import ConfigError, InputError, InputWarning, RailGsaError
+from railgsa_ros.samples import CHUNK  # IMU samples per piece of iter_imu
 
 STORAGE_SUFFIXES = ('.mcap', '.db3')
 _RECORD = struct.Struct('<BQ')  # MCAP record: opcode, content length
@@ -502,7 +503,6 @@ def summarize(path: str | Path) -> list[TopicSummary]:
 # Chunked, time-ordered reading: railgsa invert and review go through a bag in bounded memory.
 
 NAV_SAT_FIX = 'sensor_msgs/msg/NavSatFix'
-CHUNK = 65536  # IMU samples per chunk of iter_imu (65 s at 1 kHz)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.quality import Quality
+from railgsa_ros.samples import join
 
 PRE_FACTOR = 2.0  # the time-domain pre-band reaches this factor beyond each band edge
 PRE_ORDER = 4  # its Butterworth order: |BP|^2 >= 0.998 at the band edges
@@ -71,9 +72,8 @@ class GridOutput:
 
     @classmethod
     def concat(cls, outs: list[GridOutput]) -> GridOutput:
-        outs = [o for o in outs if len(o)] or [_EMPTY]
-        return cls(*(np.concatenate([getattr(o, f) for o in outs])
-                     for f in ('chainage_m', 'u_m', 'stamps_ns', 'quality')))
+        """Join grid outputs in order."""
+        return join(outs, _EMPTY)
 
 
 _EMPTY = GridOutput(np.zeros(0), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.uint8))

@@ -49,6 +49,7 @@ from railgsa_ros.inverse.multirate import (
 )
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS, Clean, InputSanitizer
+from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
 #: the band window that decides an output's quality: the taps outside it hold less than this
@@ -74,18 +75,17 @@ class Output:
     def __len__(self) -> int:
         return int(self.stamps_ns.size)
 
+    @property
+    def graded(self) -> np.ndarray:
+        """The quality codes (K,) uint8: VALID everywhere when none were given."""
+        return np.zeros(len(self), np.uint8) if self.quality is None else self.quality
+
     @classmethod
     def concat(cls, outs: list[Output], channels: int | None = None) -> Output:
         """Join outputs in order; ``channels``: P of a (P, K) bank when ``outs`` may be empty."""
-        outs = [o for o in outs if len(o)]
-        if len(outs) == 1:
-            return outs[0]
         u0 = np.zeros(0) if channels is None else np.zeros((channels, 0))
-        return cls(np.concatenate([o.stamps_ns for o in outs] + [np.zeros(0, np.int64)]),
-                   np.concatenate([o.chainage_m for o in outs] + [np.zeros(0)]),
-                   np.concatenate([o.u_m for o in outs] + [u0], axis=-1),
-                   np.concatenate([o.quality for o in outs] + [np.zeros(0, np.uint8)]),
-                   np.concatenate([o.speed_mps for o in outs] + [np.zeros(0)]))
+        return join(outs, cls(np.zeros(0, np.int64), np.zeros(0), u0, np.zeros(0, np.uint8),
+                              np.zeros(0)))
 
 
 def vertical(accel: np.ndarray, axis: str) -> np.ndarray:
@@ -147,6 +147,8 @@ class InversionPipeline:
     (``window_half_width``; default: the widest of the bank), so that a bank and the nominal
     pipeline grade their outputs alike.
     """
+
+    _inv_g: np.ndarray | None  # 1/G on the design grid (computed at the first design)
 
     def __init__(self, config: InversionConfig | None = None,
                  vehicle: VehicleParams | np.ndarray | None = None,
@@ -288,7 +290,7 @@ class InversionPipeline:
         while True:  # the grid must hold the whole FIR twice over (no circular wrap)
             self._grid = design_grid(rate, band_edges_hz(cfg.band, vmin)[0], periods)
             self._rolloff = rolloff(self._grid, f_top, rate) if self.decimation > 1 else 1.0
-            self._inv_g: np.ndarray | None = None
+            self._inv_g = None
             response = self._response(vmin)
             self._half = half_length(response, cfg.fir_tolerance)  # band FIR delay, low samples
             if 4 * self._half + 2 <= 2 * (self._grid.size - 1):
@@ -442,10 +444,10 @@ class InversionPipeline:
 
     def _redesign(self, v_kf: float, v_band: float) -> None:
         """Apply the designs due (m/s; NaN: keep)."""
-        if np.isfinite(v_kf):
+        if np.isfinite(v_kf) and isinstance(self._stage, KalmanInverse):
             self._stage.set_speed(v_kf)
             self._counters['redesign'] += 1
-        if np.isfinite(v_band):
+        if np.isfinite(v_band) and self._fir is not None:
             self._fir.set_taps(fir_taps(self._response(v_band), self._half))
             self._design_speed = v_band
             self._counters['redesign'] += 1

@@ -20,10 +20,11 @@ the grid has no valid cell there; the counts by quality are in ``counters``.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from railgsa_ros import samples
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError
 from railgsa_ros.inverse.policy import PolicyOptions
@@ -44,7 +45,7 @@ from railgsa_ros.review.grid import DX_M, Grid, GridBuilder
 from railgsa_ros.review.health import HealthAccumulator, InputHealth
 from railgsa_ros.review.limits import CLASS_UPPER_KMH, Limits, speed_class
 from railgsa_ros.review.sections import SECTION_M, SectionSpeeds
-from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig
+from railgsa_ros.uncertainty import Sensitivity, UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import VehicleParams
@@ -141,11 +142,7 @@ class _Summaries:
         self.emitted += len(step)
         keep = step.quality != Quality.INVALID
         if not keep.all():  # the summaries take the samples that are not INVALID
-            step = Step(*(v[keep] for v in (step.stamps_ns, c, step.u_m, step.speed_mps,
-                                            step.quality)),
-                        None if step.band is None else Band(*(getattr(step.band, f.name)[keep]
-                                                              for f in fields(Band))),
-                        None if step.bank_u_m is None else step.bank_u_m[:, keep])
+            step = samples.take(replace(step, chainage_m=c), keep)
             if not len(step):
                 return
             c = step.chainage_m
@@ -162,12 +159,14 @@ class _Summaries:
         self.classes += np.bincount(speed_class(step.speed_mps) % self.classes.size,
                                     minlength=self.classes.size)
         self.peak = _larger(self.peak, step.stamps_ns, c, step.u_m, np.abs(step.u_m))
-        if band is not None:
-            self.widest = _larger(self.widest, step.stamps_ns, c, upper - lower, upper - lower)
+        bank = step.bank_u_m
+        if band is not None and bank is not None:
+            width = band.upper_m - band.lower_m
+            self.widest = _larger(self.widest, step.stamps_ns, c, width, width)
             k = int(np.argmax(np.abs(band.mean_m)))
             if self.worst is None or abs(band.mean_m[k]) > abs(self.worst.mean_m):
                 self.worst = Worst(int(step.stamps_ns[k]), float(c[k]), float(band.mean_m[k]),
-                                   step.bank_u_m[:, k].copy())
+                                   bank[:, k].copy())
 
 
 def _larger(best: Extreme | None, stamps: np.ndarray, chainage: np.ndarray,
@@ -233,6 +232,7 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
         raise InputError(f'{source.bag}: the chainage never advances by {DX_M:g} m without a gap '
                          '(standstill, negative odometry speed or no odometry)')
     exceedances = summaries.exceedances + summaries.tracker.close()
+    assert summaries.peak is not None  # a valid grid cell needs a valid sample
     windows = driver.windows()
     return ReviewRun(grid, exceedances, summaries.speeds, summaries.peak, summaries.widest,
                      summaries.classes, summaries.first, summaries.last, summaries.emitted,

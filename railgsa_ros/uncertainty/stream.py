@@ -27,6 +27,7 @@ import numpy as np
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
+from railgsa_ros.samples import join, pieces
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.uncertainty.surrogate import Design, build_design
@@ -38,7 +39,6 @@ from railgsa_ros.vehicle import VehicleParams
 BLOCK = 256  # samples per quantile block: 2 MB at 1024 germ samples (cache-sized, 10 % faster)
 GEMM_ROWS = 16  # samples per BLAS call (16 x 9 x 1024 is below OpenBLAS's threading threshold)
 SORT_WIDTH = 256  # float64 values that numpy's SIMD sort sorts with a network (AVX-512)
-OFFLINE_CHUNK = 65536  # samples per push in offline_bands
 
 
 @dataclass(frozen=True)
@@ -61,10 +61,9 @@ class Band:
     @classmethod
     def concat(cls, bands: list[Band]) -> Band:
         """Join bands in order."""
-        quality = None if any(b.quality is None for b in bands) else \
-            np.concatenate([b.quality for b in bands])
-        return cls(*(np.concatenate([getattr(b, f) for b in bands]) for f in
-                     ('stamps_ns', 'chainage_m', 'lower_m', 'mean_m', 'upper_m')), quality)
+        empty = np.zeros(0)
+        return join(bands, cls(np.zeros(0, np.int64), empty, empty, empty, empty,
+                               np.zeros(0, np.uint8)))
 
 
 @dataclass(frozen=True)
@@ -145,9 +144,9 @@ def order_statistics(values: np.ndarray, ranks: np.ndarray) -> np.ndarray:
     width = size // pieces
     parts = values.reshape(count * pieces, width)  # a view: values is contiguous
     parts.sort(axis=1)
-    parts = parts.reshape(count, pieces, width)
-    lowest = np.sort(parts[:, :, :n_low].reshape(count, -1), axis=1)  # (K, pieces n_low)
-    highest = np.sort(parts[:, :, width - n_high:].reshape(count, -1), axis=1)
+    rows = parts.reshape(count, pieces, width)
+    lowest = np.sort(rows[:, :, :n_low].reshape(count, -1), axis=1)  # (K, pieces n_low)
+    highest = np.sort(rows[:, :, width - n_high:].reshape(count, -1), axis=1)
     low = ranks < size // 2
     out = np.empty((count, ranks.size))
     out[:, low] = lowest[:, ranks[low]]
@@ -232,7 +231,7 @@ class UncertaintyStream:
                                 out.speed_mps, out.quality)
         band = bank_band(self.design, self._quantiles, out, sensor)
         return Update(band, self.windows.push(out.stamps_ns, out.chainage_m, band.mean_m,
-                                              out.u_m, out.quality != Quality.INVALID),
+                                              out.u_m, out.graded != Quality.INVALID),
                       out.u_m, sensor)
 
 
@@ -240,16 +239,15 @@ def bank_band(design: Design, quantiles: tuple[float, float], out: Output,
               sensor_std_m: np.ndarray) -> Band:
     """The band of bank outputs ``out`` with the sensor terms ``sensor_std_m`` (K,) m: NaN
     where INVALID (the statistics run on the other samples only)."""
-    good = out.quality != Quality.INVALID
+    good = out.graded != Quality.INVALID
     if good.all():
-        return Band(out.stamps_ns, out.chainage_m,
-                    *band_statistics(design, quantiles, out.u_m, sensor_std_m), out.quality)
-    stats = [np.full(len(out), np.nan) for _ in range(3)]
+        lower, mean, upper = band_statistics(design, quantiles, out.u_m, sensor_std_m)
+        return Band(out.stamps_ns, out.chainage_m, lower, mean, upper, out.quality)
+    lower, mean, upper = (np.full(len(out), np.nan) for _ in range(3))
     if good.any():
-        for full, part in zip(stats, band_statistics(design, quantiles, out.u_m[:, good],
-                                                     sensor_std_m[good]), strict=True):
-            full[good] = part
-    return Band(out.stamps_ns, out.chainage_m, *stats, out.quality)
+        lower[good], mean[good], upper[good] = band_statistics(
+            design, quantiles, out.u_m[:, good], sensor_std_m[good])
+    return Band(out.stamps_ns, out.chainage_m, lower, mean, upper, out.quality)
 
 
 def offline_bands(stamps_ns: np.ndarray, accel: np.ndarray,
@@ -261,15 +259,14 @@ def offline_bands(stamps_ns: np.ndarray, accel: np.ndarray,
                   dists: Mapping[str, Distribution] | None = None,
                   noise_variance: float | None = None,
                   options: PolicyOptions | None = None) -> Band:
-    """Bands of a whole recorded stream (``railgsa invert --bands``): the node's streaming code,
-    odometry (stamps, speeds) first, then the IMU in chunks, then flushed; stamps equal the
-    nominal policy's stamps for the same input."""
+    """Bands of a whole stream in memory (tests, calibration ensembles): the node's streaming
+    code, odometry (stamps, speeds) first, then the IMU in ``samples.CHUNK`` pieces, flushed;
+    stamps equal the nominal policy's stamps for the same input."""
     config = (config if config is not None else UncertaintyConfig()).with_(qoi='')
     stream = UncertaintyStream(config, vehicle, dists, noise_variance, options)
     parts = [stream.odometry(*odometry).band] if odometry is not None else []
     stamps = np.asarray(stamps_ns, dtype=np.int64)
-    for lo in range(0, stamps.size, OFFLINE_CHUNK):
-        sl = slice(lo, lo + OFFLINE_CHUNK)
+    for sl in pieces(stamps.size):
         parts.append(stream.imu(stamps[sl], accel[sl],
                                 None if frame_ids is None else frame_ids[sl],
                                 None if covariance is None else covariance[sl]).band)
