@@ -38,7 +38,7 @@ setup(
                       'duckdb>=1.1', 'dask[distributed]>=2024.8', 'zstandard>=0.20'],
     extras_require={
         'ros': ROS,
-        'test': ['pytest>=7', 'hypothesis>=6', 'ruff>=0.5'],
+        'test': ['pytest>=7', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10'],
         'bench': ['SALib>=1.5', 'chaospy>=4.3'],
     },
     zip_safe=True,

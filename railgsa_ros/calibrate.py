@@ -58,7 +58,7 @@ class Calibration:
         """The calibrated vehicle (posterior mean)."""
         return VehicleParams(*self.theta)
 
-    def uncertainty(self) -> dict[str, dict[str, float]]:
+    def uncertainty(self) -> dict[str, dict[str, str | float]]:
         """The uncertainty-file ``parameters:`` entries: normal(mean, marginal std)."""
         std = np.sqrt(np.diag(self.covariance))
         return {n: {'dist': 'normal', 'mu': float(m), 'sigma': float(s)}

@@ -95,7 +95,7 @@ def ros_parameters(doc: Any, node_name: str, known: Collection[str] | None = Non
         raise ConfigError(f'{source}: no section for node {node_name} ("{node_name}:" or '
                           f'"/**:" with ros__parameters:){present}')
     for key in params:
-        if key in (refused or {}):
+        if refused is not None and key in refused:
             raise ConfigError(f'{source}: {node_name}: {key}: {refused[key]}')
     if known is not None:
         allowed = set(known) | ROS_BUILTIN_PARAMETERS

@@ -17,7 +17,8 @@ lengths in metres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 import math
 
 import numpy as np
@@ -34,7 +35,8 @@ CHORD_SAGITTA_M = 0.01  # generated curves: chord length sqrt(8 R s) for this sa
 MAX_CHORD_M = 1000.0  # generated straights: a vertex at least every km
 
 
-def geodetic_to_ecef(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray | float = 0.0
+def geodetic_to_ecef(lat_deg: np.ndarray | float, lon_deg: np.ndarray | float,
+                     alt_m: np.ndarray | float = 0.0
                      ) -> np.ndarray:
     """WGS84 latitude, longitude (deg) and ellipsoidal height (m) -> ECEF (..., 3), m."""
     lat, lon = np.radians(lat_deg), np.radians(lon_deg)
@@ -59,7 +61,7 @@ def ecef_to_geodetic(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return np.degrees(lat), np.degrees(np.arctan2(y, x)), alt
 
 
-def _enu_rotation(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
+def _enu_rotation(lat_deg: np.ndarray | float, lon_deg: np.ndarray | float) -> np.ndarray:
     """Rows east, north, up of the local frame at (lat, lon) in ECEF: (..., 3, 3)."""
     lat, lon = np.radians(lat_deg), np.radians(lon_deg)
     sl, cl, sp, cp = np.sin(lon), np.cos(lon), np.sin(lat), np.cos(lat)
@@ -101,6 +103,9 @@ class Line:
     lon_deg: np.ndarray
     start_m: float = 0.0
     line_id: str = 'line'
+    _step: np.ndarray = field(init=False, repr=False, compare=False)  # (N-1, 2) east, north m
+    _length: np.ndarray = field(init=False, repr=False, compare=False)  # (N-1,) segment m
+    _cum: np.ndarray = field(init=False, repr=False, compare=False)  # (N,) along the line, m
 
     def __post_init__(self) -> None:
         lat = np.asarray(self.lat_deg, dtype=float)
@@ -252,7 +257,8 @@ class GnssFixes:
 class GnssSim:
     """GNSS fixes of a run along ``line``, chunk by chunk (ticks and noise carry over)."""
 
-    def __init__(self, line: Line, spec: GnssSpec = GnssSpec(), seed: int | None = 0) -> None:
+    def __init__(self, line: Line, spec: GnssSpec = GnssSpec(),
+                 seed: int | Sequence[int] | None = 0) -> None:
         self.line = line
         self.spec = spec
         self.ticks = TickSampler(spec.rate_hz)

@@ -35,6 +35,7 @@ sections and defect positions are in ground metres.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,6 +52,9 @@ SMOOTH_M = 50.0  # width of the GNSS track smoothing, m of chainage
 CLIP = 4.0  # residuals beyond CLIP robust standard deviations are left out of the scale fit
 CLIP_ROUNDS = 3
 
+
+#: a smoothing spline: (x m, derivative order=0) -> values
+Spline = Callable[..., np.ndarray]
 
 @dataclass(frozen=True)
 class Reference:
@@ -97,8 +101,8 @@ class Track:
     scale: float
     start_m: float
     end_m: float
-    east: object
-    north: object
+    east: Spline  # east (m) of the odometry chainage
+    north: Spline  # north (m) of the odometry chainage
 
     def lat_lon(self, chainage_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(latitude, longitude) deg WGS84 of chainages (m); NaN outside the fixes."""
@@ -204,7 +208,7 @@ class OdometryDistance:
 
 
 def _smooth(odom_m: np.ndarray, east: np.ndarray, north: np.ndarray
-            ) -> tuple[np.ndarray, object, object] | None:
+            ) -> tuple[np.ndarray, Spline, Spline] | None:
     """(chainages, east spline, north spline) of the fixes (see the module); None with fewer
     than 5 distinct chainages or a span shorter than SMOOTH_M."""
     from scipy.interpolate import make_smoothing_spline
@@ -220,7 +224,7 @@ def _smooth(odom_m: np.ndarray, east: np.ndarray, north: np.ndarray
 
 
 def estimate_scale(odom_m: np.ndarray, east: np.ndarray, north: np.ndarray,
-                   splines: tuple[np.ndarray, object, object], rejected: int = 0
+                   splines: tuple[np.ndarray, Spline, Spline], rejected: int = 0
                    ) -> OdometryScale:
     """Ground metres per odometry metre from fixes at odometry chainages (see the module)."""
     _, e_spline, n_spline = splines

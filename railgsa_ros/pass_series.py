@@ -57,7 +57,8 @@ class GrowingDefect:
             return None
         size = self.size_at(index, days)
         key = 'amplitude' if self.defect.kind == 'corrugation' else 'depth'
-        return replace(self.defect, **{key: size})
+        sized: dict[str, Any] = {key: size}
+        return replace(self.defect, **sized)
 
     @property
     def centre_m(self) -> float:
@@ -283,9 +284,11 @@ def parse_range(text: str, what: str) -> tuple[float, float]:
     """'A-B' (or one number) -> (A, B); ConfigError naming ``what``."""
     match = re.fullmatch(r'\s*([0-9.eE+]+)\s*(?:-\s*([0-9.eE+]+)\s*)?', text or '')
     try:
+        if match is None:
+            raise ValueError(text)
         lo = float(match.group(1))
         hi = float(match.group(2) or match.group(1))
-    except (AttributeError, ValueError):
+    except ValueError:
         raise ConfigError(f'{what}: expected A-B or a number, got {text!r}') from None
     if not lo <= hi:
         raise ConfigError(f'{what}: expected A <= B, got {text!r}')

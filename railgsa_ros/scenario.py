@@ -20,6 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, fields, replace
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class Run:
     @classmethod
     def concat(cls, chunks: list[Run]) -> Run:
         """One run from consecutive chunks of a stream (arrays joined, dropouts summed)."""
-        arrays = {f.name: np.concatenate([getattr(c, f.name) for c in chunks])
+        arrays: dict[str, Any] = {f.name: np.concatenate([getattr(c, f.name) for c in chunks])
                   for f in fields(cls) if isinstance(getattr(chunks[0], f.name), np.ndarray)
                   and f.name != 'vehicle'}
         return replace(chunks[0], n_dropped=sum(c.n_dropped for c in chunks), **arrays)

@@ -156,7 +156,7 @@ def corrugation(x: np.ndarray, start: float, length: float, wavelength: float,
 
 
 # Spec keys -> (function keyword, default or None when required), per defect kind.
-_DEFECT_KEYS = {
+_DEFECT_KEYS: dict[str, dict[str, tuple[str, float | None]]] = {
     'dip': {'len': ('length', None), 'depth': ('depth', None)},
     'joint': {'len': ('length', JOINT[0]), 'depth': ('depth', JOINT[1])},
     'weld': {'len': ('length', WELD[0]), 'depth': ('depth', WELD[1])},
@@ -211,12 +211,13 @@ def _parse_token(token: str) -> Defect:
         if not np.isfinite(value) or (key != 'start' and value <= 0):
             raise ConfigError(f'defects: {token!r}: {key} must be a positive number (m)')
         values[key] = value
-    kwargs = {}
+    kwargs: dict[str, float] = {}
     for key, (name, default) in keys.items():
-        if key not in values and default is None:
+        given = values.get(key, default)
+        if given is None:
             raise ConfigError(f'defects: {token!r}: missing {key}= (m)')
-        kwargs[name] = values.get(key, default)
-    size = kwargs.get('depth', kwargs.get('amplitude'))
+        kwargs[name] = given
+    size = kwargs.get('depth', kwargs.get('amplitude', 0.0))
     if size > MAX_DEFECT_SIZE_M:
         raise ConfigError(f'defects: {token!r}: {size} m is not a plausible size; values are in '
                           f'metres (8 mm = 8e-3)')

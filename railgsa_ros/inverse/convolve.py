@@ -30,7 +30,7 @@ class _Level:
         self.size = size
         self.stop = stop
         self.n_part = (stop - size) // size
-        self.spectra: np.ndarray | None = None  # (n_part, C, size + 1): X_{b} newest first
+        self.spectra = np.zeros(0, complex)  # (n_part, C, size + 1): X_{b} newest first
         self.current: np.ndarray | None = None  # (C, size): contribution of the current block
 
     def set_taps(self, taps: np.ndarray) -> None:
@@ -50,8 +50,9 @@ class _Level:
         first, last = n0 // s, (n0 + t_len - 1) // s
         # blocks starting inside the chunk need their contribution computed now
         new = np.arange(first if n0 % s == 0 else first + 1, last + 1)
-        blocks = []
-        if n0 % s != 0:
+        blocks: list[np.ndarray] = []
+        if n0 % s != 0:  # a chunk inside a block continues the block's contribution
+            assert self.current is not None
             blocks.append(self.current)
         if new.size:
             # frame b = blocks b-1 and b of the input; block m uses frames m-1-q, q < n_part

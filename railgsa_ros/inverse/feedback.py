@@ -65,7 +65,8 @@ class Stability:
         return float(np.min(-self.slow_real))
 
 
-def inverse_matrices(theta: np.ndarray, gain: float) -> tuple[np.ndarray, ...]:
+def inverse_matrices(theta: np.ndarray, gain: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. 7: (A - B K C, B K, -K C, K) for theta (P, 5): (P,4,4), (P,4,1), (P,1,4), (P,1,1)."""
     a, b, c_s, _ = state_space(theta)
     k = check_gain(gain)

@@ -83,18 +83,19 @@ class MultirateFir:
     """
 
     def __init__(self, taps: np.ndarray, channels: int, r: int, antialias: np.ndarray,
-                 dtype: type = np.float64) -> None:
+                 dtype: type[np.floating] = np.float64) -> None:
         self.r = int(r)
         self.dtype = dtype
         sizes = tuple(s for s in DEFAULT_SIZES if s == DEFAULT_SIZES[0] or s * r <= MAX_SWITCH)
         self.low = PartitionedFir(taps, channels, sizes)
         self.switch_period = self.r * self.low.switch_period
-        self._dec = np.asarray(antialias, dtype=dtype)[::-1].copy()  # reversed: window product
+        # reversed: window product
+        self._dec: np.ndarray = np.asarray(antialias, dtype=dtype)[::-1].copy()
         k = -(-self._dec.size // self.r)
         pad = np.zeros(k * self.r)
         pad[:self._dec.size] = self.r * np.asarray(antialias, dtype=float)
         # phase p of low sample q: sum_j w[q - k + 1 + j] pad[(k - 1 - j) r + p]
-        self._phases = pad.reshape(k, self.r)[::-1].T.astype(dtype)  # (r, k)
+        self._phases: np.ndarray = pad.reshape(k, self.r)[::-1].T.astype(dtype)  # (r, k)
         self.reset()
 
     @property
@@ -111,7 +112,8 @@ class MultirateFir:
         """Zero state and restart absolute sample indices at 0."""
         self.n_total = 0
         self._x: np.ndarray | None = None  # last len(A) - 1 inputs (zeros before the start)
-        self._w = np.zeros((self.low.channels, self._phases.shape[1]), self.dtype)  # last k w
+        self._w: np.ndarray = np.zeros((self.low.channels, self._phases.shape[1]),
+                                       self.dtype)  # last k w
 
     def process(self, x: np.ndarray) -> np.ndarray:
         """Filter a chunk x of shape (C_in, T) or (T,)."""

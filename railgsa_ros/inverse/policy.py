@@ -314,6 +314,7 @@ class InputPolicy:
         build the filters if that has not happened yet; returns the pipeline."""
         if self.pipeline is None:
             self._decide_noise()
+        assert self.pipeline is not None  # deciding the noise builds it
         return self.pipeline
 
     def noise_std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
@@ -337,17 +338,17 @@ class InputPolicy:
 
     def _build(self) -> None:
         """The pipeline and the noise floor for the decided noise variance."""
-        cfg, opt = self.config, self.options
+        cfg, opt, variance = self.config, self.options, self.noise_variance
+        assert variance is not None  # called once the noise is decided
         self.pipeline = InversionPipeline(
-            cfg, self.bank if self.bank is not None else self.theta, self.noise_variance,
+            cfg, self.bank if self.bank is not None else self.theta, variance,
             start_chainage_m=self._start_chainage, stuck_s=opt.stuck_s,
             backward_reset_s=opt.backward_reset_s, nominal=self.theta)
-        self.noise = NoiseFloor(self.theta, cfg.band, cfg.band_order, cfg.rate_hz,
-                                self.noise_variance)
+        self.noise = NoiseFloor(self.theta, cfg.band, cfg.band_order, cfg.rate_hz, variance)
         self.v_invalid = self.noise.speed_for(cfg.noise_limit_m)
         self.v_degraded = max(self.noise.speed_for(cfg.noise_limit_m / 2), self.v_invalid)
         self._findings['noise'] = Finding('noise', OK, (
-            f'sensor noise {np.sqrt(self.noise_variance):.3g} m/s^2 ({self.noise_source}): the '
+            f'sensor noise {np.sqrt(variance):.3g} m/s^2 ({self.noise_source}): the '
             f'band is unobservable below {self.v_invalid:.3g} m/s, degraded below '
             f'{max(self.v_degraded, cfg.min_design_speed_mps):.3g} m/s'))
 
@@ -526,6 +527,7 @@ class InputPolicy:
             if not self._received:
                 return self._empty()
             self._decide_noise()
+        pipeline = self.start()
         count = len(self._held) if final else self._ready()
         if count == 0:
             return self._empty()
@@ -535,10 +537,10 @@ class InputPolicy:
         self._rest_check(accel, speed, known)
         quality = np.maximum(flags, self._speed_quality(speed, known))
         strict = self.options.wrong_frame_policy == 'reject'
-        before = self.pipeline.counters.get('accepted', 0)
-        out = self.pipeline.push(stamps, vertical(accel, self.config.accel_axis), speed,
-                                 frames.astype(str) if strict else None, quality)
-        self._reject_finding(count, self.pipeline.counters.get('accepted', 0) - before)
+        before = pipeline.counters.get('accepted', 0)
+        out = pipeline.push(stamps, vertical(accel, self.config.accel_axis), speed,
+                            frames.astype(str) if strict else None, quality)
+        self._reject_finding(count, pipeline.counters.get('accepted', 0) - before)
         return self.finish(out)
 
     def _speed_finding(self, speed: np.ndarray, known: np.ndarray) -> None:
@@ -598,17 +600,17 @@ class InputPolicy:
         reasons = {r: counters.get(r, 0) for r in REASONS if counters.get(r, 0)}
         if not reasons:
             return
-        top = max(reasons, key=reasons.get)
+        top = max(reasons, key=lambda r: reasons[r])
         text = ', '.join(f'{k} {v}' for k, v in reasons.items())
         self._findings['rejected'] = Finding('rejected', ERROR, (
             f'every IMU sample is rejected ({text}): {_HINTS[top]}'))
 
     def finish(self, out: Output) -> Output:
         """Count pipeline outputs by quality and set u = NaN where INVALID."""
-        if not len(out):
+        if not len(out) or out.quality is None:
             return out
         self._counts.update(quality_counts(out.quality))
-        invalid = out.quality == Quality.INVALID
+        invalid = np.asarray(out.quality == Quality.INVALID)
         if not invalid.any():
             return out
         u = np.array(out.u_m, dtype=float)

@@ -81,9 +81,10 @@ class InputSanitizer:
         self._newest = np.iinfo(np.int64).min
         self._run = (np.nan, 0)
 
-    def process(self, stamps_ns: np.ndarray, accel: np.ndarray, speed: np.ndarray,
+    def process(self, stamps_ns: np.ndarray, accel: np.ndarray, speed: np.ndarray | float,
                 frame_ids: np.ndarray | None = None) -> Clean:
-        """Classify a chunk (stamps int64 ns, vertical accel m/s^2, speed m/s, optional ids)."""
+        """Classify a chunk (stamps int64 ns, vertical accel m/s^2, speed m/s per sample or
+        one for all, optional ids)."""
         stamps = np.asarray(stamps_ns, dtype=np.int64)
         accel = np.asarray(accel, dtype=float)
         speed = np.broadcast_to(np.asarray(speed, dtype=float), accel.shape)

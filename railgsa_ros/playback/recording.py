@@ -9,12 +9,13 @@ the broken file is renamed ``*.mcap.partial`` and ConfigError names it.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import suppress
 from dataclasses import dataclass, field
 import errno
 import os
 from pathlib import Path
+from typing import BinaryIO
 
 from mcap.writer import CompressionType, Writer
 from rosbags.interfaces import Qos
@@ -70,7 +71,7 @@ class BagRecorder:
         self.compression = CompressionType.ZSTD if compress else CompressionType.NONE
         self.topics: dict[str, TopicSpec] = {}
         self.segments: list[Segment] = []
-        self._file = None
+        self._file: BinaryIO | None = None
         self._writer: Writer | None = None
         self._channels: dict[str, int] = {}
         self._pending: dict[str, int] = {}
@@ -91,8 +92,9 @@ class BagRecorder:
     def add_topic(self, spec: TopicSpec) -> None:
         """Declare a topic before writing to it."""
         self.topics[spec.name] = spec
-        if self._writer is not None:
-            self._guarded(lambda: self._register(spec))
+        writer = self._writer
+        if writer is not None:
+            self._guarded(lambda: self._register(writer, spec))
 
     def write(self, topic: str, log_ns: int, data: bytes) -> None:
         """Append one message received at ``log_ns`` (ns); starts a new file when due."""
@@ -101,7 +103,7 @@ class BagRecorder:
     def tick(self, now_ns: int) -> None:
         """Push buffered data to disk and finish the file in progress if it is ``split_s`` old."""
         def flush() -> None:
-            if self._writer is None:
+            if self._writer is None or self._file is None:
                 return
             if now_ns - self._seg_start >= self.split_ns:
                 self._finish()
@@ -122,9 +124,8 @@ class BagRecorder:
         """Append, opening or splitting files as needed."""
         if self._writer is not None and log_ns - self._seg_start >= self.split_ns:
             self._finish()
-        if self._writer is None:
-            self._open(log_ns)
-        self._writer.add_message(self._channels[topic], log_ns, data, log_ns)
+        writer = self._writer or self._open(log_ns)
+        writer.add_message(self._channels[topic], log_ns, data, log_ns)
         self._pending[topic] = self._pending.get(topic, 0) + 1
         self._seg_end = max(self._seg_end, log_ns)
 
@@ -132,29 +133,30 @@ class BagRecorder:
         """Path of the file in progress."""
         return self.path / f'{self.path.name}_{len(self.segments)}.mcap'
 
-    def _open(self, start_ns: int) -> None:
-        """Start a new storage file and register every known topic in it."""
+    def _open(self, start_ns: int) -> Writer:
+        """Start a new storage file and register every known topic in it; its writer."""
         self._file = open(self._file_path(), 'xb')  # noqa: SIM115 - closed in _finish
-        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=self.compression)
-        self._writer.start(profile='ros2', library='railgsa_ros')
+        writer = self._writer = Writer(self._file, chunk_size=CHUNK_BYTES,
+                                       compression=self.compression)
+        writer.start(profile='ros2', library='railgsa_ros')
         self._channels, self._pending = {}, {}
         self._seg_start = self._seg_end = start_ns
         for spec in self.topics.values():
-            self._register(spec)
+            self._register(writer, spec)
+        return writer
 
-    def _register(self, spec: TopicSpec) -> None:
+    def _register(self, writer: Writer, spec: TopicSpec) -> None:
         """Schema and channel of ``spec`` in the file in progress."""
-        schema = self._writer.register_schema(spec.msgtype, 'ros2msg',
+        schema = writer.register_schema(spec.msgtype, 'ros2msg',
                                               message_definition(spec.msgtype).encode())
         metadata = {'offered_qos_profiles': _qos_yaml(spec.offered_qos)}
         if spec.type_hash:
             metadata['topic_type_hash'] = spec.type_hash
-        self._channels[spec.name] = self._writer.register_channel(spec.name, 'cdr', schema,
-                                                                  metadata)
+        self._channels[spec.name] = writer.register_channel(spec.name, 'cdr', schema, metadata)
 
     def _finish(self) -> None:
         """Finish the file in progress (if any) and rewrite metadata.yaml."""
-        if self._writer is None:
+        if self._writer is None or self._file is None:
             return
         self._writer.finish()
         os.fsync(self._file.fileno())
@@ -181,8 +183,9 @@ class BagRecorder:
 
     def _abandon(self, exc: OSError) -> str:
         """Close and rename the broken file; the message for the user."""
-        broken = self._file_path() if self._file is not None else None
+        broken = None
         if self._file is not None:
+            broken = self._file_path()
             with suppress(OSError):
                 self._file.close()
             with suppress(OSError):
@@ -196,7 +199,7 @@ class BagRecorder:
         return self.failed
 
 
-def topic_entry(name: str, msgtype: str, qos: list[dict], type_hash: str,
+def topic_entry(name: str, msgtype: str, qos: Sequence[Mapping[str, object]], type_hash: str,
                 count: int) -> dict:
     """One ``topics_with_message_count`` entry of metadata.yaml (QoS as dumped for version 9)."""
     return {'topic_metadata': {'name': name, 'type': msgtype, 'serialization_format': 'cdr',

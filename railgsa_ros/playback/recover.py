@@ -19,6 +19,7 @@ import os
 from pathlib import Path
 import re
 import struct
+from typing import BinaryIO
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -77,7 +78,8 @@ def recover_bag(path: str | Path) -> list[FileReport]:
     candidates = sorted([*path.glob('*.mcap'), *path.glob('*.mcap.partial')], key=_file_order)
     if not candidates:
         raise InputError(f'{path}: no .mcap file to recover')
-    reports, segments, topics = [], [], {}
+    reports, segments = [], []
+    topics: dict[str, tuple[str, list, str, int]] = {}  # name -> type, QoS, type hash, count
     for file in candidates:
         report = _recover_file(file)
         reports.append(report)
@@ -174,7 +176,7 @@ def _keep(out: _Salvage, opcode: int, content: bytes) -> None:
             out.messages.append(message)
 
 
-def _write(stream: object, salvage: _Salvage) -> None:
+def _write(stream: BinaryIO, salvage: _Salvage) -> None:
     """A complete MCAP file (summary, indexes, chunk CRCs) with the salvaged records."""
     compression = CompressionType.ZSTD if salvage.compression == 'zstd' else \
         CompressionType.LZ4 if salvage.compression == 'lz4' else CompressionType.NONE

@@ -116,8 +116,8 @@ def events(read: Callable[[], Iterable[tuple[str, int, bytes]]], lo: int, hi: in
     period: int | None = None
     base = 0
     while True:
-        first = last = None
-        count = 0
+        first: int | None = None
+        last = count = 0
         for topic, stamp, data in read():
             play = base + stamp - lo
             due = round(play / options.rate)
@@ -130,7 +130,7 @@ def events(read: Callable[[], Iterable[tuple[str, int, bytes]]], lo: int, hi: in
             first = stamp if first is None else first
             last, count = stamp, count + 1
         if period is None:
-            if not count:
+            if first is None:
                 raise ConfigError('no message in the selected topics and time window')
             period = _loop_period(lo, hi, first, last, count, options)
         if not options.loop:

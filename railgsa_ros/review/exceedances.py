@@ -125,9 +125,10 @@ class ExceedanceTracker:
                                       None if sensor_std_m is None else sensor_std_m[sel])
         cols.update({f'p_{k}': prob[:, j] for j, k in enumerate(_LIMITS)})
         self._seen += u.size
-        held = 0 if self._open is None else self._open['index'].size
-        if held:
-            cols = {k: np.concatenate([self._open[k], cols[k]]) for k in _FIELDS}
+        opened = self._open
+        held = 0 if opened is None else opened['index'].size
+        if opened is not None and held:
+            cols = {k: np.concatenate([opened[k], cols[k]]) for k in _FIELDS}
         if cols['index'].size == 0:
             return []
         idx = cols['index']

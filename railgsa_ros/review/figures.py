@@ -247,7 +247,8 @@ def plot_health(path: Path, health: InputHealth) -> Path:
     ax_t.legend(fontsize=8, loc='lower right')
     ax_t.grid(alpha=0.3)
     ax_j = fig.add_subplot(grid[1, 0])
-    edges = np.linspace(*trace.jitter_range_s, trace.jitter_counts.size + 1) * 1e6
+    low_s, high_s = trace.jitter_range_s
+    edges = np.linspace(low_s, high_s, trace.jitter_counts.size + 1) * 1e6
     ax_j.stairs(trace.jitter_counts, edges, fill=True, color='0.5')  # one patch
     ax_j.set_yscale('log')
     ax_j.set_xlabel('step - nominal period [us]')

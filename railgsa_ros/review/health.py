@@ -169,8 +169,8 @@ class InputHealth:
     speed_max_mps: float
     stamp_source: str
     gap_factor: float
+    imu_trace: StampAccumulator  # per-second counts, gap log times, jitter histogram
     counters: dict[str, int] = field(default_factory=dict)
-    imu_trace: StampAccumulator | None = None
 
     @property
     def rejected(self) -> dict[str, int]:
@@ -208,7 +208,7 @@ class HealthAccumulator:
         """The health of everything pushed, with the pipeline's counters."""
         lo, hi = self.speed_range if np.isfinite(self.speed_range[0]) else (np.nan, np.nan)
         return InputHealth(self.imu.stats(), self.odom.stats() if self.odom.count else None,
-                           lo, hi, stamp_source, self.gap_factor, dict(counters), self.imu)
+                           lo, hi, stamp_source, self.gap_factor, self.imu, dict(counters))
 
 
 def input_health(imu_stamps_ns: np.ndarray, odom_stamps_ns: np.ndarray, speed_mps: np.ndarray,

@@ -30,7 +30,7 @@ CHUNK = 256  # parameter sets per bank
 MAX_SAMPLES = 240_000
 
 
-def sample_indices(times: Sequence[float], dt: float) -> np.ndarray:
+def sample_indices(times: float | Sequence[float] | np.ndarray, dt: float) -> np.ndarray:
     """Indices k with k dt = t for every t (s); ConfigError when t is negative or off the grid."""
     t = np.atleast_1d(np.asarray(times, dtype=float))
     k = np.rint(t / dt)
@@ -95,14 +95,14 @@ def make_scenario(kind: str, times: float | Sequence[float],
         raise ConfigError('uncertainty: no uncertain parameter')
     vehicle = vehicle or VehicleParams()
     dt = 1.0 / rate_hz
-    times = np.asarray(times, dtype=float)
-    last = int(sample_indices(times, dt).max())
+    at = np.asarray(times, dtype=float)
+    last = int(sample_indices(at, dt).max())
     if last > MAX_SAMPLES:
-        raise ConfigError(f'time: {float(np.max(times)):g} s is beyond the longest scenario '
+        raise ConfigError(f'time: {float(np.max(at)):g} s is beyond the longest scenario '
                           f'({MAX_SAMPLES * dt:g} s at {rate_hz:g} Hz)')
     check_seed(seed)
     _, u = make_profile(profile, speed_mps * dt * last, speed_mps * dt, seed)
     u = u[:last + 1]
     a_meas = simulate(u, dt, vehicle)[0]
-    return Scenario(kind, tuple(dists), tuple(dists.values()), times, dt, vehicle, float(gain),
+    return Scenario(kind, tuple(dists), tuple(dists.values()), at, dt, vehicle, float(gain),
                     u, a_meas)

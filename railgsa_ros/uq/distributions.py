@@ -78,6 +78,7 @@ class Normal(Distribution):
     sigma: float
     lower: float = -math.inf
     upper: float = math.inf
+    _ab: tuple[float, float] = field(init=False, repr=False, compare=False)  # standardised
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'mu', _check('mu', self.mu))
@@ -101,8 +102,8 @@ class Normal(Distribution):
     def _log_masses(self) -> tuple[float, float, float]:
         """(log Phi(a), log Phi(-b), log of the mass between the standardised bounds)."""
         a, b = self._ab
-        log_pa, log_qb = special.log_ndtr(a), special.log_ndtr(-b)
-        return log_pa, log_qb, _log_diff(special.log_ndtr(b), log_pa)
+        log_pa, log_qb = float(special.log_ndtr(a)), float(special.log_ndtr(-b))
+        return log_pa, log_qb, float(_log_diff(special.log_ndtr(b), log_pa))
 
     def from_xi(self, xi: np.ndarray) -> np.ndarray:
         """Physical values in [lower, upper]: exact truncated-normal quantile of Phi(xi)."""
@@ -127,7 +128,7 @@ class Normal(Distribution):
         return np.where(log_cdf <= log_sf, low, high)
 
 
-def _log_diff(log_a: np.ndarray, log_b: np.ndarray) -> np.ndarray:
+def _log_diff(log_a: np.ndarray | float, log_b: np.ndarray | float) -> np.ndarray:
     """log(exp(log_a) - exp(log_b)) for log_a >= log_b, without overflow (-inf when equal)."""
     with np.errstate(divide='ignore', invalid='ignore'):
         return log_a + np.log1p(-np.exp(np.asarray(log_b) - log_a))
@@ -193,6 +194,8 @@ class Empirical(Distribution):
     """
 
     samples: np.ndarray = field(repr=False)
+    _values: np.ndarray = field(init=False, repr=False)  # distinct sorted values
+    _positions: np.ndarray = field(init=False, repr=False)  # their plotting positions
 
     def __post_init__(self) -> None:
         data = np.asarray(self.samples, dtype=float).ravel()
