@@ -46,4 +46,5 @@ class SubscriberWait:
         if self.lonely or counts != self._last:
             self._last, self._since = counts, None if self.lonely else now_s
             return False
-        return now_s - self._since >= self.settle_s
+        since = self._since  # None only while a topic is short (returned above)
+        return since is not None and now_s - since >= self.settle_s
