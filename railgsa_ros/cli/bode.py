@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from railgsa_ros.vehicle import VehicleParams
 
 DEFAULT_OUT = 'bode.png'
 
@@ -26,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def mode_table(params: object) -> str:
+def mode_table(params: VehicleParams) -> str:
     """Modes (natural frequency Hz, damping ratio, pole) and zeros of G_s and G_us as text."""
     import numpy as np
 
@@ -49,7 +53,8 @@ def _complex(z: complex) -> str:
     return f'{z.real:.4g}' if z.imag == 0 else f'{z.real:.4g}{z.imag:+.4g}j'
 
 
-def plot_bode(params: object, out: str | Path, fmin: float = 0.1, fmax: float = 200.0) -> Path:
+def plot_bode(params: VehicleParams, out: str | Path, fmin: float = 0.1,
+              fmax: float = 200.0) -> Path:
     """Draw |G| (dB re 1 (m/s^2)/m) and phase (deg) of G_s and G_us over [fmin, fmax] Hz into
     ``out`` (written atomically; the format follows the suffix)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _prior_entries(prior) -> dict[str, dict[str, float]]:
+def _prior_entries(prior) -> dict[str, dict[str, str | float]]:
     """Uncertainty-file entries of the prior's normal laws (others are left out)."""
     from railgsa_ros.uq.distributions import Normal
 

@@ -72,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
         result = analyze(scenario, list(dists.values()), order=args.order, rule=args.rule,
                          seed=args.seed)
     notes = [str(w.message) for w in caught if issubclass(w.category, AliasingWarning)]
+    delta = result.delta
+    assert delta is not None  # analyze computes it by default
     q = result.quantiles([0.025, 0.5, 0.975])
     out = {
         'scenario': args.scenario, 'time_s': args.time, 'unit': scenario.unit,
@@ -80,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         'quantiles': {'2.5%': float(q[0]), '50%': float(q[1]), '97.5%': float(q[2])},
         'sobol_first': dict(zip(names, np.round(result.sobol_first, 6).tolist(), strict=True)),
         'sobol_total': dict(zip(names, np.round(result.sobol_total, 6).tolist(), strict=True)),
-        'delta': dict(zip(names, np.round(result.delta, 6).tolist(), strict=True)),
+        'delta': dict(zip(names, np.round(delta, 6).tolist(), strict=True)),
         'n_evaluations': result.n_evaluations, 'rule': args.rule, 'order': args.order,
         'fit': result.fit, 'notes': notes,
     }
@@ -89,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                          result=result)
         out['validation'] = {'n_evaluations': check.monte_carlo.n_evaluations,
                              'cost_ratio': check.cost_ratio, 'errors': check.errors}
-    if args.plot:
+    if folder is not None:
         from railgsa_ros.uq.plots import plot_histogram, plot_sensitivities
 
         label = {'inverse': 'reconstructed irregularity', 'forward': 'car-body acceleration'}
@@ -109,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'{"parameter":<10}{"S_first":>10}{"S_total":>10}{"delta":>10}')
     for i, name in enumerate(names):
         print(f'{name:<10}{result.sobol_first[i]:10.4f}{result.sobol_total[i]:10.4f}'
-              f'{result.delta[i]:10.4f}')
+              f'{delta[i]:10.4f}')
     for note in notes:
         print(f'note: {note}')
     if args.validate is not None:

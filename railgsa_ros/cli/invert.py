@@ -25,8 +25,18 @@ from pathlib import Path
 import sys
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the command imports its modules when it runs (fast --help)
+    from typing import TextIO
+
     import numpy as np
+
+    from railgsa_ros.bag import BagWriter, ImuStream
+    from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.inverse.policy import PolicyOptions
+    from railgsa_ros.location import Location, Reference
+    from railgsa_ros.offline import Driver, Source
+    from railgsa_ros.uncertainty import Band
+    from railgsa_ros.vehicle import VehicleParams
 
 REJECTIONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
 OUT_TOPIC = '/track/irregularity'
@@ -88,7 +98,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 POLICY_PARAMS = ('odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s')
 
 
-def build_config(args: argparse.Namespace, rate_hz: float) -> tuple[object, object, object]:
+def build_config(args: argparse.Namespace, rate_hz: float
+                 ) -> tuple[InversionConfig, PolicyOptions, Reference]:
     """(InversionConfig, PolicyOptions, location Reference) from the params file (if any), then
     the command line. rate_hz defaults to the bag's measured rate; a given rate_hz that
     disagrees with it beyond rate_tolerance is a ConfigError (the filters would be designed for
@@ -149,12 +160,12 @@ class Inputs:
     """What the bag and the options give the driver: the bag's pieces (the first one read to
     measure the rate) and the settings, with the run's location."""
 
-    source: object
-    pieces: object
-    config: object
-    options: object
-    vehicle: object
-    location: object
+    source: Source
+    pieces: Iterator[ImuStream]
+    config: InversionConfig
+    options: PolicyOptions
+    vehicle: VehicleParams
+    location: Location
 
 
 def load_inputs(args: argparse.Namespace) -> Inputs:
@@ -180,7 +191,7 @@ def load_inputs(args: argparse.Namespace) -> Inputs:
     return Inputs(source, pieces, cfg, options, vehicle, locate(source, start, reference))
 
 
-def make_driver(args: argparse.Namespace, inp: Inputs) -> object:
+def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
     """The offline driver: the nominal policy (with --grid, the filters in front of the
     chainage grid, ``inverse.grid.grid_config``) and with --bands uncertainty_node's stream for
     the same samples, the odometry scaled as GNSS found it."""
@@ -218,13 +229,13 @@ class CsvRows:
     2 INVALID (u and the band 'nan'); km-post of the chainage; WGS84 position ('nan' without
     GNSS)."""
 
-    def __init__(self, handle: object, band: bool, location: object) -> None:
+    def __init__(self, handle: TextIO, band: bool, location: Location) -> None:
         self.handle, self.band, self.location = handle, band, location
         header = 't_s,chainage_m,u_m,quality' + (',lower_m,mean_m,upper_m' if band else '')
         handle.write(header + ',km,lat,lon\n')
 
     def write(self, stamps_ns: np.ndarray, chainage_m: np.ndarray, u_m: np.ndarray,
-              quality: np.ndarray, band: object | None = None) -> None:
+              quality: np.ndarray, band: Band | None = None) -> None:
         import numpy as np
 
         if stamps_ns.size == 0:
@@ -232,6 +243,8 @@ class CsvRows:
         lat, lon = self.location.lat_lon(chainage_m)
         values = [chainage_m, u_m, quality]
         if self.band:
+            if band is None:
+                raise AssertionError('a row of the band columns without its band')
             values += [band.lower_m, band.mean_m, band.upper_m]
         values += [self.location.reference.km(chainage_m), lat, lon]
         cols = np.column_stack(values)
@@ -247,7 +260,7 @@ class BagBatches:
     ``topic`` (PointStamped: x chainage, y quality code, z irregularity, NaN when INVALID) and
     with a band ``/track/irregularity_band`` (Vector3Stamped: x lower, y mean, z upper)."""
 
-    def __init__(self, bag: object, band: bool, topic: str) -> None:
+    def __init__(self, bag: BagWriter, band: bool, topic: str) -> None:
         from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED
         from railgsa_ros.qos import history_depth, record_qos
 
@@ -257,7 +270,7 @@ class BagBatches:
             bag.add_topic(name, layout.msgtype, record_qos(True, history_depth(1000.0)))
 
     def write(self, stamps_ns: np.ndarray, chainage_m: np.ndarray, u_m: np.ndarray,
-              quality: np.ndarray, band: object | None = None) -> None:
+              quality: np.ndarray, band: Band | None = None) -> None:
         import numpy as np
 
         from railgsa_ros.bag.cdr import encode
@@ -273,7 +286,7 @@ class BagBatches:
 
 
 @contextmanager
-def output(args: argparse.Namespace, location: object) -> Iterator[object]:
+def output(args: argparse.Namespace, location: Location) -> Iterator[CsvRows | BagBatches]:
     """The CSV rows or bag batches of ``args``, written atomically (nothing left on error)."""
     from railgsa_ros.bag import BagWriter
     from railgsa_ros.fileio import atomic_output
@@ -334,7 +347,7 @@ def run(args: argparse.Namespace) -> int:
     if inp.location.track is not None:
         print(f'odometry scale {scale.value:.5f} +- {scale.std:.5f} ({scale.note})',
               file=sys.stderr)
-    counts = ', '.join(f'{k} {v}' for k, v in sorted(driver.counters.items()))
+    summary = ', '.join(f'{k} {v}' for k, v in sorted(driver.counters.items()))
     print(f'{count} samples ({driver.nominal.config.method}, band {driver.nominal.config.band}, '
-          f'delay {driver.delay_samples} samples); {counts}', file=sys.stderr)
+          f'delay {driver.delay_samples} samples); {summary}', file=sys.stderr)
     return 0

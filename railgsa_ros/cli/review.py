@@ -93,7 +93,8 @@ def reference(args: argparse.Namespace, params: dict[str, Any]) -> Any:
 
             raise ConfigError(f'km_origin: expected a number of km, got '
                               f'{values["km_origin"]!r}') from None
-    return Reference(**{k: v if k == 'km_origin' else str(v) for k, v in values.items()})
+    given: dict[str, Any] = {k: v if k == 'km_origin' else str(v) for k, v in values.items()}
+    return Reference(**given)
 
 
 def parameters(args: argparse.Namespace) -> dict[str, Any]:
