@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -37,8 +38,16 @@ class Decoded:
     values: np.ndarray
 
 
+@overload
+def _align(offset: int, size: int) -> int: ...
+
+
+@overload
+def _align(offset: np.ndarray, size: int) -> np.ndarray: ...
+
+
 def _align(offset: np.ndarray | int, size: int) -> np.ndarray | int:
-    """Round an offset up to a multiple of ``size`` bytes."""
+    """Round an offset (one, or one per message) up to a multiple of ``size`` bytes."""
     return (offset + size - 1) // size * size
 
 
@@ -157,14 +166,14 @@ def decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
         values = sub[:, start:start + 8 * layout.n_doubles].copy().view(end + 'f8')
         strings = []
         for j, count in enumerate(lengths):
-            pos = int(str_pos[j][0] if len(groups) == 1 else str_pos[j][rows[0]])
+            pos = int(str_pos[j][0 if isinstance(rows, slice) else rows[0]])
             uniq, inv = _unique_rows(sub[:, pos:pos + count - 1])
             strings.append(np.array([bytes(u).decode('utf-8', 'replace') for u in uniq])[inv])
         pieces.append((rows, Decoded(sec * _NS + nsec, tuple(strings), values)))
     return _combine(pieces, n, layout)
 
 
-def _combine(pieces: list[tuple[np.ndarray | slice, Decoded]], n: int,
+def _combine(pieces: Sequence[tuple[np.ndarray | slice, Decoded]], n: int,
              layout: StampedLayout) -> Decoded:
     """Scatter decoded parts (row indices, part) into one Decoded of n rows."""
     if len(pieces) == 1 and isinstance(pieces[0][0], slice):
@@ -193,6 +202,6 @@ def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded
     pieces = []
     for length in np.unique(lengths):
         rows = np.flatnonzero(lengths == length)
-        block = np.frombuffer(b''.join([raws[i] for i in rows]), np.uint8)
+        block = np.frombuffer(b''.join([raws[i] for i in rows.tolist()]), np.uint8)
         pieces.append((rows, decode_block(layout, block.reshape(rows.size, int(length)))))
     return _combine(pieces, len(raws), layout)
