@@ -99,8 +99,8 @@ def node_values(path: str, namespace: str) -> dict[str, dict[str, Any]]:
             vehicle_values(values[node])
         except ConfigError as exc:
             raise ConfigError(f'{path}: {node}: {exc}') from None
-    own = {f.name for f in fields(UncertaintyConfig)} | {s.name for s in INVERSION_SPECS}
-    UncertaintyConfig.from_mapping({k: v for k, v in values[NODES[1]].items() if k in own},
+    names = {f.name for f in fields(UncertaintyConfig)} | {s.name for s in INVERSION_SPECS}
+    UncertaintyConfig.from_mapping({k: v for k, v in values[NODES[1]].items() if k in names},
                                    f'{path}: {NODES[1]}')
     differ = sorted(s.name for s in common if s.name not in TRANSPORT
                     and values[NODES[0]][s.name] != values[NODES[1]][s.name])
@@ -140,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
     namespace = namespace_of(args.namespace)
     if args.params:
         node_values(args.params, namespace)
-    stop, received = threading.Event(), []
+    stop = threading.Event()
+    received: list[int] = []  # the signals that asked us to stop
     previous = forward_signals(stop, received)
     try:
         with System(None, localhost=False) as system:
