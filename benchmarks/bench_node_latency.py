@@ -1,20 +1,28 @@
-"""Latency and loss of irregularity_node at 1 kHz across processes, against a bare relay.
+"""CPU, latency and loss of irregularity_node and uncertainty_node against a bare relay.
 
-Five processes on one machine, all with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a private
-ROS_DOMAIN_ID: an IMU publisher (1 kHz, nominal stamps t0 + k ms, simulated car-body
-acceleration), ``irregularity_node``, a relay node (subscribe imu/data with the node's QoS,
-republish on relay/imu), and a receiver subscribed to both outputs. Publish and receive times are
-CLOCK_MONOTONIC, shared by the processes.
+One run measures, at each input rate (default 1 and 4 kHz), three subjects one after the other
+(each with a fresh IMU publisher and receiver, so they never compete for the two cores):
+the baseline relay (a bare typed rclpy node: subscribe imu/data with the nodes' QoS, republish
+every message on relay/imu), ``irregularity_node`` and ``uncertainty_node``. Every process sets
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a ROS_DOMAIN_ID reserved for the run.
 
-Latency definitions (ms):
-- relay: receive time of relay/imu carrying stamp k minus publish time of IMU sample k;
-- node: the band filter has a fixed delay of D samples, so the output for sample k is computed
-  when sample k + D arrives. Processing latency = receive time of track/irregularity carrying
-  stamp k minus publish time of IMU sample k + D. D is read from the node's /diagnostics.
-Lost = IMU samples without their output (the node's last D samples are excluded: they wait for
-input that never comes).
+- The publisher sends pre-serialized Imu messages (nominal stamps t0 + k / rate, simulated
+  car-body acceleration at 20 m/s) once the subject's reader matched; the receiver reads the
+  subject's output with a raw subscription in a thread of its own (a Python executor could not
+  take 4 kHz). Publish and receive times are CLOCK_MONOTONIC, shared by the processes.
+- CPU: utime + stime of the subject process (/proc/<pid>/stat) over the publishing window,
+  in % of one core.
+- Latency (ms): relay: receive time of relay/imu stamped k minus publish time of sample k.
+  Node: its band filter has a fixed delay of D samples (read from its /diagnostics), so output
+  k is computed when sample k + D arrives: receive time of output k minus publish time of
+  sample k + D. uncertainty_node works in batches every ``process_period_s`` (50 ms), so its
+  latency includes up to one period by design.
+- Lost: samples 0..N-1-D without their output (the last D wait for input that never comes).
 
-Usage: python benchmarks/bench_node_latency.py [--duration 60] [--rate 1000]
+Prints a table with the node/relay ratios and the issue's targets: irregularity_node CPU <=
+relay, uncertainty_node CPU <= 1.5x relay at 1 kHz, p99 <= relay's, no loss at 4 kHz.
+
+Usage: python benchmarks/bench_node_latency.py [--duration 20] [--rates 1000 4000]
 """
 
 from __future__ import annotations
@@ -28,6 +36,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
@@ -35,7 +44,15 @@ import numpy as np
 from railgsa_ros.system import reserve_domain
 
 SPEED_MPS = 20.0
-IMU_TOPIC, RELAY_TOPIC, OUT_TOPIC = 'imu/data', 'relay/imu', 'track/irregularity'
+IMU_TOPIC, RELAY_TOPIC = 'imu/data', 'relay/imu'
+#: subject -> (output topic, its message type, diagnostics task with band_delay_samples)
+SUBJECTS = {'relay': (RELAY_TOPIC, 'sensor_msgs/msg/Imu', None),
+            'irregularity_node': ('track/irregularity', 'geometry_msgs/msg/PointStamped',
+                                  'irregularity_node: inversion'),
+            'uncertainty_node': ('track/irregularity_band', 'geometry_msgs/msg/Vector3Stamped',
+                                 'uncertainty_node: uncertainty')}
+T0_STAMP_NS = 1_000_000_000_000
+LEAD_S = 2.0  #: after the reader matched: time for the subject's output to match the receiver
 
 
 def _ros_env(domain_id: int) -> dict[str, str]:
@@ -54,7 +71,7 @@ def _acceleration(n: int, rate_hz: float) -> np.ndarray:
     return simulate(u, 1.0 / rate_hz, VehicleParams())[0] + 9.80665
 
 
-def _spin_until_signal(node) -> None:
+def _spin_until_signal(node: object) -> None:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
@@ -63,48 +80,47 @@ def _spin_until_signal(node) -> None:
 
 
 def role_publish(args: argparse.Namespace) -> None:
-    """Publish ``rate`` Imu messages a second for ``duration`` s once two readers matched."""
+    """Publish ``rate`` serialized Imu messages a second for ``duration`` s once the subject
+    subscribed; save the publish times."""
     import rclpy
     from sensor_msgs.msg import Imu
 
+    from railgsa_ros.bag.cdr import encode
+    from railgsa_ros.bag.messages import IMU, imu_values
     from railgsa_ros.nodes.qos import sensor_qos
 
     n = int(args.duration * args.rate)
-    acc = _acceleration(n, args.rate)
+    period_ns = round(1e9 / args.rate)
+    stamps = T0_STAMP_NS + np.arange(n) * period_ns
+    accel = np.zeros((n, 3))
+    accel[:, 2] = _acceleration(n, args.rate)
+    raws = encode(IMU, stamps, ['imu_link'], imu_values(accel, 1e-4))
     rclpy.init()
     node = rclpy.create_node('bench_imu_publisher')
     pub = node.create_publisher(Imu, IMU_TOPIC, sensor_qos())
-    deadline = time.monotonic() + 30.0
-    while pub.get_subscription_count() < args.readers and time.monotonic() < deadline:
+    deadline = time.monotonic() + 60.0
+    while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
         time.sleep(0.05)
-    time.sleep(2.0)  # let the outputs of the relay and the node match the receiver
-    msg = Imu()
-    msg.header.frame_id = 'imu_link'
-    msg.orientation_covariance[0] = -1.0
-    msg.linear_acceleration_covariance[0] = msg.linear_acceleration_covariance[4] = \
-        msg.linear_acceleration_covariance[8] = 1e-4
-    period_ns = round(1e9 / args.rate)
-    t0_stamp = 1_000_000_000_000
+    time.sleep(LEAD_S)
+    Path(args.out, 'started').touch()
     sent = np.zeros(n, np.int64)
     start = time.monotonic_ns()
-    for k in range(n):
-        delay = start + k * period_ns - time.monotonic_ns()
-        if delay > 0:
-            time.sleep(delay * 1e-9)
-        stamp = t0_stamp + k * period_ns
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        msg.linear_acceleration.z = float(acc[k])
-        sent[k] = time.monotonic_ns()
-        pub.publish(msg)
+    k = 0
+    while k < n:
+        due = min(n, (time.monotonic_ns() - start) // period_ns + 1)
+        for i in range(k, due):
+            sent[i] = time.monotonic_ns()
+            pub.publish(raws[i])
+        k = due
+        time.sleep(max(0.0, (start + k * period_ns - time.monotonic_ns()) * 1e-9))
     time.sleep(1.0)
-    np.savez(Path(args.out) / 'publish.npz', stamps=t0_stamp + np.arange(n) * period_ns,
-             sent=sent)
+    np.savez(Path(args.out) / 'publish.npz', stamps=stamps, sent=sent)
     node.destroy_node()
     rclpy.try_shutdown()
 
 
 def role_relay(args: argparse.Namespace) -> None:
-    """The baseline: subscribe imu/data with the node's QoS and republish each message."""
+    """The baseline: subscribe imu/data with the nodes' QoS and republish each message."""
     import rclpy
     from sensor_msgs.msg import Imu
 
@@ -119,39 +135,53 @@ def role_relay(args: argparse.Namespace) -> None:
 
 
 def role_receive(args: argparse.Namespace) -> None:
-    """Record (stamp, receive time) of both outputs and the node's band delay until SIGINT."""
+    """Record (stamp, receive time) of the subject's output and its /diagnostics until SIGINT."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PointStamped
     import rclpy
-    from sensor_msgs.msg import Imu
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
+    from railgsa_ros.bag.cdr import decode
+    from railgsa_ros.bag.messages import LAYOUTS
+    from railgsa_ros.nodes.imu_input import RawSubscription
     from railgsa_ros.nodes.qos import output_qos
 
-    log: dict[str, list[tuple[int, int]]] = {'relay': [], 'node': []}
+    topic, msgtype, _ = SUBJECTS[args.subject]
+    package, _, name = msgtype.split('/')
+    msg_cls = getattr(__import__(f'{package}.msg', fromlist=[name]), name)
+    rclpy.init()
+    node = rclpy.create_node('bench_receiver')
+    sub = RawSubscription(node, msg_cls, topic, output_qos(100_000))
+    raws: list[bytes] = []
+    times: list[int] = []
     diag: dict[str, str] = {}
+    stop = threading.Event()
 
-    def record(key: str):
-        def callback(msg) -> None:
+    def read() -> None:
+        wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+        while not stop.is_set():
+            wait_set.clear_entities()
+            wait_set.add_subscription(sub.handle)
+            wait_set.wait(100_000_000)
             now = time.monotonic_ns()
-            log[key].append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                             now))
-        return callback
+            got = sub.take(100_000)
+            raws.extend(got)
+            times.extend([now] * len(got))
 
     def on_diag(msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name.startswith('irregularity_node'):
-                diag.update({f'{status.name}/{kv.key}': kv.value for kv in status.values})
+            diag.update({f'{status.name}/{kv.key}': kv.value for kv in status.values})
 
-    rclpy.init()
-    node = rclpy.create_node('bench_receiver')
-    node.create_subscription(Imu, RELAY_TOPIC, record('relay'), output_qos())
-    node.create_subscription(PointStamped, OUT_TOPIC, record('node'), output_qos())
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     _spin_until_signal(node)
+    stop.set()
+    reader.join(5.0)
+    stamps = decode(LAYOUTS[msgtype], raws).stamps_ns
     out = Path(args.out)
-    np.savez(out / 'receive.npz', **{k: np.array(v, np.int64).reshape(-1, 2)
-                                     for k, v in log.items()})
+    np.savez(out / 'receive.npz', stamps=stamps, times=np.array(times, np.int64))
     (out / 'diagnostics.json').write_text(json.dumps(diag, indent=1))
+    sub.destroy()
     rclpy.try_shutdown()
 
 
@@ -161,88 +191,106 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def _latencies(stamps: np.ndarray, sent: np.ndarray, received: np.ndarray,
-               delay: int) -> tuple[np.ndarray, int]:
+def _latencies(pub: dict, rec: dict, delay: int) -> tuple[np.ndarray, int]:
     """Latency (ms) per received output and the number of inputs 0..N-1-delay not received."""
-    index = {int(s): i for i, s in enumerate(stamps)}
-    got = np.zeros(len(stamps), bool)
-    lat = []
-    for stamp, t_rx in received:
-        i = index.get(int(stamp))
-        if i is None or got[i] or i + delay >= len(stamps):
-            continue
-        got[i] = True
-        lat.append((t_rx - sent[i + delay]) * 1e-6)
-    return np.array(lat), int(np.count_nonzero(~got[:len(stamps) - delay]))
+    stamps, sent = pub['stamps'], pub['sent']
+    n = stamps.size - delay
+    index = np.searchsorted(stamps, rec['stamps'])
+    ok = (index < n) & (stamps[np.minimum(index, stamps.size - 1)] == rec['stamps'])
+    index, times = index[ok], rec['times'][ok]
+    first = np.unique(index, return_index=True)[1]  # each output once
+    lat = (times[first] - sent[index[first] + delay]) * 1e-6
+    return lat, n - first.size
 
 
-def _band_delay(diag: dict[str, str]) -> int | None:
-    """The node's band delay D (samples) from its /diagnostics, None if it never reported."""
-    for key, value in diag.items():
-        if key.endswith('/band_delay_samples'):
-            return int(value)
-    return None
+def _subject_command(subject: str, me: list[str], common: list[str], rate: float) -> list[str]:
+    if subject == 'relay':
+        return [*me, 'relay', *common]
+    return [sys.executable, '-m', f'railgsa_ros.nodes.{subject}', '--ros-args',
+            '-p', f'speed_mps:={SPEED_MPS}', '-p', 'use_odom:=false', '-p', f'rate_hz:={rate:g}']
 
 
-def drive(args: argparse.Namespace) -> int:
-    """Start the processes, run, stop them with SIGINT and print the table."""
-    domain, _held = reserve_domain()
+def measure(subject: str, rate: float, duration: float, domain: int) -> dict:
+    """One subject at one rate: CPU %, latencies, lost, band delay, exit code."""
     env = _ros_env(domain)
     me = [sys.executable, str(Path(__file__).resolve())]
     with tempfile.TemporaryDirectory(prefix='bench_node_latency_') as tmp:
-        common = ['--out', tmp, '--duration', str(args.duration), '--rate', str(args.rate)]
+        common = ['--out', tmp, '--duration', str(duration), '--rate', str(rate),
+                  '--subject', subject]
         receiver = subprocess.Popen([*me, 'receive', *common], env=env)
-        node = subprocess.Popen([sys.executable, '-m', 'railgsa_ros.nodes.irregularity_node',
-                                 '--ros-args', '-p', f'speed_mps:={SPEED_MPS}',
-                                 '-p', 'use_odom:=false'], env=env)
-        relay = subprocess.Popen([*me, 'relay', *common], env=env)
-        time.sleep(1.0)
-        cpu0 = {'node': _cpu_seconds(node.pid), 'relay': _cpu_seconds(relay.pid)}
-        wall0 = time.monotonic()
-        publisher = subprocess.run([*me, 'publish', *common, '--readers', '2'], env=env,
-                                   check=False)
-        wall = time.monotonic() - wall0
-        cpu = {'node': _cpu_seconds(node.pid) - cpu0['node'],
-               'relay': _cpu_seconds(relay.pid) - cpu0['relay']}
+        proc = subprocess.Popen(_subject_command(subject, me, common, rate), env=env)
+        publisher = subprocess.Popen([*me, 'publish', *common], env=env)
+        while not Path(tmp, 'started').exists() and publisher.poll() is None:
+            time.sleep(0.01)
+        cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
+        publisher.wait()
+        wall, cpu = time.monotonic() - wall0 - 1.0, _cpu_seconds(proc.pid) - cpu0
+        time.sleep(1.0)  # the last outputs arrive
         codes = {}
-        for name, proc in (('node', node), ('relay', relay), ('receiver', receiver)):
-            proc.send_signal(signal.SIGINT)
+        for name, p in (('subject', proc), ('receiver', receiver)):
+            p.send_signal(signal.SIGINT)
             try:
-                codes[name] = proc.wait(timeout=20)
+                codes[name] = p.wait(timeout=30)
             except subprocess.TimeoutExpired:
-                proc.kill()
+                p.kill()
                 codes[name] = 'killed'
-        if publisher.returncode != 0:
-            print(f'publisher failed with exit code {publisher.returncode}', file=sys.stderr)
-            return 1
-        pub = np.load(Path(tmp) / 'publish.npz')
-        rec = np.load(Path(tmp) / 'receive.npz')
+        if publisher.returncode != 0 or not Path(tmp, 'receive.npz').exists():
+            raise SystemExit(f'{subject} at {rate:g} Hz: publisher exit {publisher.returncode}, '
+                             f'receiver {codes["receiver"]}')
+        pub = dict(np.load(Path(tmp) / 'publish.npz'))
+        rec = dict(np.load(Path(tmp) / 'receive.npz'))
         diag = json.loads((Path(tmp) / 'diagnostics.json').read_text())
-    delay = _band_delay(diag)
-    if delay is None:
-        print(f'irregularity_node published no /diagnostics (exit code {codes["node"]})',
-              file=sys.stderr)
-        return 1
+    task = SUBJECTS[subject][2]
+    delay = 0 if task is None else int(diag.get(f'{task}/band_delay_samples', -1))
+    if delay < 0:
+        raise SystemExit(f'{subject} published no /diagnostics (exit code {codes["subject"]})')
+    lat, lost = _latencies(pub, rec, delay)
+    p50, p99 = np.percentile(lat, [50, 99]) if lat.size else (np.nan, np.nan)
+    return {'cpu': 100 * cpu / wall, 'p50': p50, 'p99': p99,
+            'max': lat.max() if lat.size else np.nan, 'received': lat.size, 'lost': lost,
+            'delay': delay, 'exit': codes['subject']}
+
+
+def report(rows: dict[tuple[float, str], dict], load: tuple[float, float]) -> bool:
+    """Print the table and the targets; whether every target was met."""
+    print(f'\nload average before / after: {load[0]:.1f} / {load[1]:.1f} (2 shared cores)')
+    print('| rate Hz | process | CPU % of a core | p50 ms | p99 ms | max ms | lost | '
+          'CPU / relay | p99 / relay |')
+    print('|---|---|---|---|---|---|---|---|---|')
+    for (rate, subject), r in rows.items():
+        base = rows[(rate, 'relay')]
+        print(f'| {rate:g} | {subject} | {r["cpu"]:.1f} | {r["p50"]:.2f} | {r["p99"]:.2f} | '
+              f'{r["max"]:.1f} | {r["lost"]} | {r["cpu"] / base["cpu"]:.2f} | '
+              f'{r["p99"] / base["p99"]:.2f} |')
+    checks = []
+    low, high = min(r for r, _ in rows), max(r for r, _ in rows)
+    for subject, cpu_ratio in (('irregularity_node', 1.0), ('uncertainty_node', 1.5)):
+        r, base = rows[(low, subject)], rows[(low, 'relay')]
+        checks.append((f'{subject} CPU <= {cpu_ratio:g} x relay at {low:g} Hz',
+                       r['cpu'] <= cpu_ratio * base['cpu']))
+    for rate in sorted({r for r, _ in rows}):
+        r, base = rows[(rate, 'irregularity_node')], rows[(rate, 'relay')]
+        checks.append((f'irregularity_node p99 <= relay p99 at {rate:g} Hz',
+                       r['p99'] <= base['p99']))
+    for subject in ('irregularity_node', 'uncertainty_node'):
+        checks.append((f'{subject} no loss at {high:g} Hz', rows[(high, subject)]['lost'] == 0))
+    for text, ok in checks:
+        print(f'{"PASS" if ok else "FAIL"}  {text}')
+    return all(ok for _, ok in checks)
+
+
+def drive(args: argparse.Namespace) -> int:
+    """Every subject at every rate, then the table."""
+    domain, _held = reserve_domain()
+    load0 = os.getloadavg()[0]
     rows = {}
-    for name, d in (('relay', 0), ('node', delay)):
-        lat, lost = _latencies(pub['stamps'], pub['sent'], rec[name], d)
-        rows[name] = (lat, lost)
-    print(f'\n{len(pub["stamps"])} IMU samples at {args.rate:g} Hz over {args.duration:g} s; '
-          f'band delay D = {delay} samples ({delay / args.rate * 1e3:g} ms, not counted)')
-    print(f'{"process":<18}{"received":>9}{"lost":>6}{"p50 ms":>9}{"p99 ms":>9}{"max ms":>9}'
-          f'{"CPU %":>8}{"exit":>6}')
-    for name, label in (('relay', 'relay (baseline)'), ('node', 'irregularity_node')):
-        lat, lost = rows[name]
-        p50, p99 = np.percentile(lat, [50, 99]) if len(lat) else (np.nan, np.nan)
-        top = lat.max() if len(lat) else np.nan
-        print(f'{label:<18}{len(lat):>9}{lost:>6}{p50:>9.3f}{p99:>9.3f}{top:>9.3f}'
-              f'{100 * cpu[name] / wall:>8.1f}{codes[name]!s:>6}')
-    p99_relay = np.percentile(rows['relay'][0], 99)
-    p99_node = np.percentile(rows['node'][0], 99)
-    ratio = p99_node / p99_relay
-    ok = ratio <= 1.5 and rows['node'][1] == 0
-    print(f'p99 ratio node/relay = {ratio:.2f} (target <= 1.5); node lost {rows["node"][1]} '
-          f'(target 0): {"PASS" if ok else "FAIL"}')
+    for rate in args.rates:
+        for subject in SUBJECTS:
+            rows[(rate, subject)] = r = measure(subject, rate, args.duration, domain)
+            print(f'{subject} at {rate:g} Hz: CPU {r["cpu"]:.1f} %, p50 {r["p50"]:.2f} ms, '
+                  f'p99 {r["p99"]:.2f} ms, lost {r["lost"]}, D {r["delay"]}, '
+                  f'exit {r["exit"]}', flush=True)
+    report(rows, (load0, os.getloadavg()[0]))
     return 0
 
 
@@ -250,15 +298,19 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('role', nargs='?', default='drive',
                         choices=['drive', 'publish', 'relay', 'receive'])
-    parser.add_argument('--duration', type=float, default=60.0,
-                        help='s of IMU data; more than the band delay (about 7 s) so that the '
-                        'node emits outputs')
-    parser.add_argument('--rate', type=float, default=1000.0, help='IMU rate, Hz')
+    parser.add_argument('--duration', type=float, default=20.0,
+                        help='s of IMU data per subject and rate; more than the band delay '
+                        '(about 7 s) so that the nodes emit outputs')
+    parser.add_argument('--rates', type=float, nargs='+', default=[1000.0, 4000.0],
+                        help='IMU rates, Hz')
+    parser.add_argument('--rate', type=float, default=1000.0, help='(internal) IMU rate, Hz')
     parser.add_argument('--out', help='(internal) directory for the roles\' results')
-    parser.add_argument('--readers', type=int, default=2, help='(internal) imu/data readers')
+    parser.add_argument('--subject', choices=sorted(SUBJECTS), default='relay',
+                        help='(internal) the process measured')
     args = parser.parse_args(argv)
     if args.role == 'drive' and args.duration <= 10.0:
-        parser.error('--duration must exceed 10 s: the node emits nothing during its band delay')
+        parser.error('--duration must exceed 10 s: the nodes emit nothing during their band '
+                     'delay')
     if args.role == 'drive':
         return drive(args)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import PARAMS, T0_NS, G, imu_msgs, offline
+from test_irregularity_node import PARAMS, T0_NS, G, imu_msgs, offline, serialized
 from test_irregularity_node import run as run  # fixture
 
 pytestmark = pytest.mark.ros
@@ -34,7 +34,7 @@ def node(ros_context: Any) -> Iterator[Any]:
 
 def feed(node: Any, stamps: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, ...]:
     """Process in chunks; the published stamps, chainage and irregularity."""
-    msgs = imu_msgs(stamps, acc)
+    msgs = serialized(imu_msgs(stamps, acc))
     outs = [node.process(msgs[i:i + CHUNK]) for i in range(0, len(msgs), CHUNK)]
     outs = [o for o in outs if o is not None and len(o)]
     return tuple(np.concatenate([getattr(o, f) for o in outs])

@@ -2,8 +2,9 @@
 uncertainty_node get batches (0..N messages) of a running 1 kHz IMU stream with fuzzed messages
 mixed in (stamps zero, negative, nanosec out of range, huge, backwards, duplicated; frame ids
 empty, unicode, very long; accelerations NaN, +-inf, subnormal, 1e308; covariance patterns
-with the -1/NaN sentinels), and odometry messages with fuzzed stamps and speeds through their
-odom subscription callback. Nothing raises out of a handler, every value that reaches
+with the -1/NaN sentinels; serialized bytes truncated, garbage, a foreign encapsulation), and
+odometry messages with fuzzed stamps and speeds (and garbage bytes) before each batch, as the
+reader thread hands them over. Nothing raises out of a handler, every value that reaches
 track/irregularity, track/irregularity_band and track/sensitivity (recorded by a listener) is
 finite, every IMU message is counted once and the core never fails (internal_error 0).
 irregularity_node's feedback/no-band handler fuzz lives in test_irregularity_node.py.
@@ -20,6 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
+from test_irregularity_node import serialized
 
 pytestmark = pytest.mark.ros
 
@@ -47,10 +49,17 @@ bad_messages = st.tuples(
     st.one_of(st.integers(-2**31, 2**31 - 1), st.sampled_from([0, -1, 2**31 - 1])),
     st.one_of(st.integers(0, 2**32 - 1), st.sampled_from([0, NS - 1, NS, 2**32 - 1])),
     frames, st.tuples(floats, floats, floats), covariances)
-#: a batch: clean samples continuing the clock, with fuzzed messages at some positions
+#: serialized messages no decoder reads: random bytes, a message cut at some byte, a valid
+#: message with an XCDR2 / unknown encapsulation
+garbage = st.one_of(st.binary(max_size=80), st.integers(0, 323).map(lambda n: ('cut', n)),
+                    st.sampled_from([b'\x00\x07', b'\x00\x09', b'\x01\x00']).map(
+                        lambda head: ('head', head)))
+#: a batch: clean samples continuing the clock, with fuzzed messages (and bytes) at some
+#: positions
 batches = st.tuples(st.integers(0, 700), st.lists(st.tuples(st.floats(0, 1), bad_messages),
                                                   max_size=6),
-                    st.sampled_from([1, 1, 1, 0, -1, 30]))  # clock step: on, dup, back, gap
+                    st.sampled_from([1, 1, 1, 0, -1, 30]),  # clock step: on, dup, back, gap
+                    st.lists(st.tuples(st.floats(0, 1), garbage), max_size=3))
 #: odometry speeds: NaN/inf (rejected) and finite ones up to 1 km/s (beyond that the chainage
 #: overflows: test_fuzz_core.py::test_absurd_odometry_speed_keeps_the_chainage_finite)
 speeds = st.one_of(st.sampled_from([np.nan, np.inf, -np.inf]), st.floats(-1e3, 1e3),
@@ -87,7 +96,8 @@ class Clock:
         self.rng = np.random.default_rng(0)
         self.sent = 0
 
-    def batch(self, n: int, bad: list, step: int) -> list:
+    def batch(self, n: int, bad: list, step: int, junk: list) -> list[bytes]:
+        """Serialized messages: the clean stream with ``bad`` messages and ``junk`` bytes."""
         stamps = self.next_ns + np.arange(n) * 1_000_000
         self.next_ns = int(stamps[-1]) + step * 1_000_000 if n else self.next_ns
         acc = G + 0.2 * self.rng.standard_normal(n)
@@ -95,13 +105,21 @@ class Clock:
                 for t, a in zip(stamps.tolist(), acc.tolist(), strict=True)]
         for where, fields in bad:
             msgs.insert(int(where * len(msgs)), imu(*fields))
-        self.sent += len(msgs)
-        return msgs
+        raws = serialized(msgs)
+        valid = serialized([imu(1, 0, 'imu_link', (0.0, 0.0, G), [0.0] * 9)])[0]
+        for where, kind in junk:
+            data = kind if isinstance(kind, bytes) else valid[:kind[1]] \
+                if kind[0] == 'cut' else kind[1] + valid[2:]
+            raws.insert(int(where * len(raws)), data)
+        self.sent += len(raws)
+        return raws
 
-    def odom(self, rows: list) -> list:
-        """Odometry: fuzzed stamps, or (flag) stamped at the stream's clock."""
-        return [odometry(*divmod(self.next_ns, NS), v) if at_clock else odometry(s, ns, v)
-                for s, ns, v, at_clock in rows]
+    def odom(self, rows: list) -> list[bytes]:
+        """Serialized odometry: fuzzed stamps, or (flag) stamped at the stream's clock; one
+        message cut short per batch."""
+        raws = serialized([odometry(*divmod(self.next_ns, NS), v) if at_clock else
+                           odometry(s, ns, v) for s, ns, v, at_clock in rows])
+        return [*raws, raws[0][:40]] if raws else raws
 
 
 class Listener:
@@ -175,23 +193,14 @@ def rig(ros_context: Any, spin: Callable, wait_for: Callable) -> Iterator[Callab
         node.destroy_node()
 
 
-def odom_callback(node: Any) -> Callable[[Any], None]:
-    """The node's own odom subscription callback."""
-    [sub] = [s for s in node.subscriptions if s.topic_name == '/odom']
-    return sub.callback
-
-
 def run_fuzz(node: Any, finite: Callable[[Any], bool]) -> None:
     """Feed the fuzzed odometry and IMU batches; check the returns and the counters."""
     clock = Clock()
-    on_odom = odom_callback(node)
 
     @FUZZ
     @given(batches, odoms)
     def handle(batch: tuple, odom_rows: list) -> None:
-        for msg in clock.odom(odom_rows):
-            on_odom(msg)
-        out = node.process(clock.batch(*batch))
+        out = node.process(clock.batch(*batch), clock.odom(odom_rows))
         assert out is None or finite(out)
 
     handle()

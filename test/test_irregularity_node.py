@@ -56,6 +56,13 @@ def imu_msgs(stamps_ns: np.ndarray, accel_z: np.ndarray, frame: str = 'imu_link'
     return msgs
 
 
+def serialized(msgs: list) -> list[bytes]:
+    """Messages as the nodes' raw subscriptions receive them (``process`` takes bytes)."""
+    from rclpy.serialization import serialize_message
+
+    return [serialize_message(m) for m in msgs]
+
+
 def _policy(params: dict[str, Any], noise_variance: float | None = None,
             vehicle: Any = None) -> Any:
     from railgsa_ros.inverse.config import InversionConfig
@@ -498,7 +505,7 @@ def test_fuzzed_messages_never_raise_and_nan_only_when_invalid(ros_context: Any)
             m.linear_acceleration.z = z
             m.linear_acceleration_covariance[0], m.linear_acceleration_covariance[8] = cov0, cov8
             msgs.append(m)
-        out = node.process(msgs)  # u finite except where INVALID (NaN)
+        out = node.process(serialized(msgs))  # u finite except where INVALID (NaN)
         assert out is None or np.all(np.isfinite(out.u_m) == (out.quality != 2))
 
     check()

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline
+from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline, serialized
 from test_irregularity_node import run as run
 
 pytestmark = pytest.mark.ros
@@ -41,10 +41,10 @@ def test_transitions_walk_the_node_through_its_states(run: Any, ros_context: Any
         assert node.count_publishers('track/irregularity') == 1
         assert node.count_subscribers('imu/data') == others          # inactive: no input
         stamps, acc = run.stamps_ns[:3000] + T0_NS, run.accel[:3000, 2]
-        assert node.process(imu_msgs(stamps, acc)) is None       # nothing processed
+        assert node.process(serialized(imu_msgs(stamps, acc))) is None  # nothing processed
         assert node.trigger_activate() == R.SUCCESS and _state(node) == 'active'
         assert node.count_subscribers('imu/data') == others + 1
-        out = node.process(imu_msgs(stamps, acc))
+        out = node.process(serialized(imu_msgs(stamps, acc)))
         ref = offline(stamps, acc)
         np.testing.assert_array_equal(out.stamps_ns, ref.stamps_ns)
         np.testing.assert_array_equal(out.u_m, ref.u_m)
@@ -72,9 +72,10 @@ def test_uncertainty_node_transitions(run: Any, ros_context: Any) -> None:
         assert node.trigger_activate() == R.SUCCESS
         assert node.count_subscribers('imu/data') == 1  # the polled reader
         stamps, acc = run.stamps_ns[:2500] + T0_NS, run.accel[:2500, 2]
-        assert len(node.process(imu_msgs(stamps, acc))) == 2500 - node.stream.delay_samples
+        assert len(node.process(serialized(imu_msgs(stamps, acc)))) == \
+            2500 - node.stream.delay_samples
         assert node.trigger_deactivate() == R.SUCCESS and node.count_subscribers('imu/data') == 0
-        assert node.process(imu_msgs(stamps, acc)) is None
+        assert node.process(serialized(imu_msgs(stamps, acc))) is None
         assert node.trigger_cleanup() == R.SUCCESS and node.count_publishers(band) == 0
         assert node.counters()['accepted'] == 2500
     finally:

@@ -3,72 +3,105 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 
-from railgsa_ros.nodes.imu_conversion import imu_batch, odom_speed
+from railgsa_ros.bag.messages import typestore
+from railgsa_ros.nodes.imu_conversion import imu_batch, odometry_speeds
 
 NAN = float('nan')
+TS = typestore()  # rosbags' serialiser: independent of the decoder under test
 
 
-def fake_imu(sec: int = 5, nanosec: int = 250, frame: str = 'imu_link',
-             acc: tuple[float, float, float] = (0.1, -0.2, 9.81),
-             cov: list[float] | None = None) -> SimpleNamespace:
-    """A duck-typed Imu (as rosbags or rclpy messages look to the converter)."""
-    return SimpleNamespace(
-        header=SimpleNamespace(stamp=SimpleNamespace(sec=sec, nanosec=nanosec), frame_id=frame),
-        linear_acceleration=SimpleNamespace(x=acc[0], y=acc[1], z=acc[2]),
+def imu_raw(sec: int = 5, nanosec: int = 250, frame: str = 'imu_link',
+            acc: tuple[float, float, float] = (0.1, -0.2, 9.81),
+            cov: list[float] | None = None, little_endian: bool = True) -> bytes:
+    """A serialized sensor_msgs/Imu (any stamp fields, also invalid ones)."""
+    t = TS.types
+    vec, quat = t['geometry_msgs/msg/Vector3'], t['geometry_msgs/msg/Quaternion']
+    msg = t['sensor_msgs/msg/Imu'](
+        header=t['std_msgs/msg/Header'](stamp=t['builtin_interfaces/msg/Time'](
+            sec=sec, nanosec=nanosec), frame_id=frame),
+        orientation=quat(0.0, 0.0, 0.0, 1.0), orientation_covariance=np.full(9, -1.0),
+        angular_velocity=vec(0.0, 0.0, 0.0), angular_velocity_covariance=np.zeros(9),
+        linear_acceleration=vec(*acc),
         linear_acceleration_covariance=np.array(cov if cov is not None else [0.0] * 9))
+    return bytes(TS.serialize_cdr(msg, 'sensor_msgs/msg/Imu', little_endian=little_endian))
 
 
-def test_imu_batch_converts_fields_and_flags_malformed_messages() -> None:
-    msgs = [fake_imu(), fake_imu(sec=6, nanosec=999_999_999, acc=(0.0, 0.0, NAN)),
-            fake_imu(sec=0, nanosec=0), fake_imu(frame=''), fake_imu(nanosec=1_000_000_000),
-            fake_imu(sec=-3), SimpleNamespace(header=None), 'not a message']
-    batch = imu_batch(msgs)
-    assert len(batch) == len(msgs)
-    np.testing.assert_array_equal(batch.malformed, [False, False] + [True] * 6)
-    assert batch.stamps_ns[:2].tolist() == [5_000_000_250, 6_999_999_999]
+def odom_raw(sec: int, nanosec: int, vx: float) -> bytes:
+    t = TS.types
+    vec = t['geometry_msgs/msg/Vector3']
+    header = t['std_msgs/msg/Header'](stamp=t['builtin_interfaces/msg/Time'](
+        sec=sec, nanosec=nanosec), frame_id='odom')
+    pose = t['geometry_msgs/msg/Pose'](position=t['geometry_msgs/msg/Point'](1.0, 0.0, 0.0),
+                                       orientation=t['geometry_msgs/msg/Quaternion'](
+                                           0.0, 0.0, 0.0, 1.0))
+    msg = t['nav_msgs/msg/Odometry'](
+        header=header, child_frame_id='base_link',
+        pose=t['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=np.zeros(36)),
+        twist=t['geometry_msgs/msg/TwistWithCovariance'](
+            twist=t['geometry_msgs/msg/Twist'](linear=vec(vx, 0.5, 0.0),
+                                               angular=vec(0.0, 0.0, 0.1)),
+            covariance=np.zeros(36)))
+    return bytes(TS.serialize_cdr(msg, 'nav_msgs/msg/Odometry'))
+
+
+def test_imu_batch_decodes_fields_and_drops_malformed_messages() -> None:
+    good = [imu_raw(), imu_raw(sec=6, nanosec=999_999_999, acc=(0.0, 0.0, NAN), frame='ü_b')]
+    bad = [imu_raw(sec=0, nanosec=0), imu_raw(frame=''), imu_raw(nanosec=1_000_000_000),
+           imu_raw(sec=-3), imu_raw()[:100], b'', b'\x00\x07' + imu_raw()[2:], b'garbage!' * 5]
+    batch, malformed = imu_batch([bad[0], good[0], *bad[1:5], good[1], *bad[5:]])
+    assert malformed == len(bad) and len(batch) == 2
+    assert batch.stamps_ns.tolist() == [5_000_000_250, 6_999_999_999]
     np.testing.assert_array_equal(batch.accel[0], [0.1, -0.2, 9.81])
     assert np.isnan(batch.accel[1, 2])  # NaN data is not malformed: the sanitiser counts it
-    assert batch.frame_ids[0] == 'imu_link' and batch.stamps_ns.dtype == np.int64
-    empty = imu_batch([])
-    assert len(empty) == 0 and empty.accel.shape == (0, 3)
+    assert batch.frame_ids.tolist() == ['imu_link', 'ü_b'] and batch.stamps_ns.dtype == np.int64
+    empty, none = imu_batch([])
+    assert len(empty) == 0 and empty.accel.shape == (0, 3) and none == 0
 
 
-def test_imu_batch_reads_rclpy_messages() -> None:
+def test_imu_batch_reads_big_endian_and_other_encodings_through_the_fallback() -> None:
+    """Big-endian CDR is decoded vectorised; what is not plain CDR goes to the fallback in
+    its place (here a stand-in that reads one foreign encapsulation), the rest is dropped."""
+    foreign = b'\x00\x07' + imu_raw(sec=9)[2:]
+
+    def fallback(raw: bytes) -> tuple:
+        if raw[:2] != b'\x00\x07':
+            raise ValueError('unreadable')
+        return 9 * 10**9, 0, ('imu_link',), np.arange(37.0)
+    raws = [imu_raw(sec=7, cov=[0] * 8 + [2e-4], little_endian=False), foreign, b'\x00\x01',
+            imu_raw(sec=8)]
+    batch, malformed = imu_batch(raws, fallback)
+    assert malformed == 1 and batch.stamps_ns.tolist() == [7 * 10**9 + 250, 9 * 10**9,
+                                                          8 * 10**9 + 250]
+    np.testing.assert_array_equal(batch.covariance[0], [0] * 8 + [2e-4])  # as sent
+    np.testing.assert_array_equal(batch.accel[1], [25.0, 26.0, 27.0])
+
+
+def test_rclpy_serialized_messages_decode_like_their_fields() -> None:
     sensor_msgs = pytest.importorskip('sensor_msgs.msg')
+    from rclpy.serialization import serialize_message
+
     m = sensor_msgs.Imu()
     m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id = 7, 5, 'imu_link'
     m.linear_acceleration.z = 9.8
     m.linear_acceleration_covariance[8] = 2e-4
-    batch = imu_batch([m])
-    assert batch.stamps_ns.tolist() == [7_000_000_005] and batch.accel[0, 2] == 9.8
+    batch, malformed = imu_batch([serialize_message(m)])
+    assert malformed == 0 and batch.stamps_ns.tolist() == [7_000_000_005]
+    assert batch.accel[0, 2] == 9.8
     np.testing.assert_array_equal(batch.covariance[0], [0] * 8 + [2e-4])  # as sent
 
 
-def test_covariance_passed_on_as_sent_and_short_ones_malformed() -> None:
-    """REP 145 rules are the input policy's: the converter keeps the 9 values as they came."""
-    cov = [-1.0, 0, 0, 0, 2e-4, 0, 0, 0, NAN]
-    np.testing.assert_array_equal(imu_batch([fake_imu(cov=cov)]).covariance[0], cov)
-    assert imu_batch([fake_imu(cov=[1e-4] * 3)]).malformed.tolist() == [True]
-
-
-def test_odom_speed() -> None:
-    def odom(sec: int, nanosec: int, vx: float) -> SimpleNamespace:
-        return SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=sec,
-                                                                            nanosec=nanosec)),
-                               twist=SimpleNamespace(twist=SimpleNamespace(
-                                   linear=SimpleNamespace(x=vx))))
-    assert odom_speed(odom(2, 5, 12.5)) == (2_000_000_005, 12.5)
-    assert odom_speed(odom(2, 5, -3.0)) == (2_000_000_005, -3.0)  # reversing is a speed too
-    for bad in (odom(0, 0, 1.0), odom(2, 2_000_000_000, 1.0), object()):
-        assert odom_speed(bad) is None
-    stamp, speed = odom_speed(odom(2, 0, NAN))  # the policy counts NaN odometry, not the node
-    assert stamp == 2_000_000_000 and np.isnan(speed)
+def test_odometry_speeds() -> None:
+    stamps, speeds, malformed = odometry_speeds(
+        [odom_raw(2, 5, 12.5), odom_raw(0, 0, 1.0), odom_raw(2, 2_000_000_000, 1.0),
+         odom_raw(3, 0, -3.0), odom_raw(4, 0, NAN), b'\x00\x01\x00\x00'])
+    assert malformed == 3 and stamps.tolist() == [2_000_000_005, 3 * 10**9, 4 * 10**9]
+    assert speeds[:2].tolist() == [12.5, -3.0]  # reversing is a speed too
+    assert np.isnan(speeds[2])  # the policy counts NaN odometry, not the node
 
 
 # --------------------------------------------------------------------------- ROS helpers

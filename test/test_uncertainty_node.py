@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_irregularity_node import serialized
 
 pytestmark = pytest.mark.ros
 
@@ -280,9 +281,10 @@ def test_internal_error_is_counted_and_the_stream_rebuilt(run: Any, rig: Callabl
             raise RuntimeError('injected')
         return type(policy).imu(policy, *args)
     policy.imu = fail_once
-    assert node.process(msgs) is None
+    assert node.process(serialized(msgs)) is None
     assert node.counters()['internal_error'] == 1 and node.counters()['rebuild'] == 1
-    node.process(imu_messages(run.stamps_ns[100:3000] + T0_NS, run.accel[100:3000, 2]))
+    node.process(serialized(imu_messages(run.stamps_ns[100:3000] + T0_NS,
+                                         run.accel[100:3000, 2])))
     assert node.counters()['published'] > 0
 
 
@@ -308,9 +310,8 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     for m in msgs:
         m.linear_acceleration_covariance[0] = 0.0
         m.linear_acceleration_covariance[8] = 4e-6
-    node._intake._on_odom(odom(stamps[0]))
-    node.process(msgs)
-    node._intake._on_odom(odom(stamps[-1] + 1))  # newer than every sample: all decided
+    node.process(serialized(msgs), serialized([odom(stamps[0])]))  # odometry first
+    node.process([], serialized([odom(stamps[-1] + 1)]))  # newer than every sample: all decided
     config = node_config().with_(qoi='', inversion=node_config().inversion.with_(
         method='kalman', band='none'))
     ref = UncertaintyStream(config, noise_variance=4e-6,

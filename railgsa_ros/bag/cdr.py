@@ -10,9 +10,9 @@ the general deserialiser.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import overload
+from typing import Literal, overload
 
 import numpy as np
 
@@ -31,11 +31,18 @@ class StampedLayout:
 
 @dataclass(frozen=True)
 class Decoded:
-    """Decoded stream: stamps_ns (N,) int64, strings[j] (N,) str arrays, values (N, n_doubles)."""
+    """Decoded stream: stamps_ns (N,) int64, strings[j] (N,) str arrays, values (N, n_doubles);
+    ``nanosec`` (N,) int64: header.stamp.nanosec as sent (a value >= 1e9 is invalid but folds
+    into stamps_ns unnoticed), None where not kept."""
 
     stamps_ns: np.ndarray
     strings: tuple[np.ndarray, ...]
     values: np.ndarray
+    nanosec: np.ndarray | None = None
+
+
+#: (stamp_ns, nanosec, strings, float64 body) of one message, for what ``decode`` cannot read
+Fallback = Callable[[bytes], tuple[int, int, tuple[str, ...], np.ndarray]]
 
 
 @overload
@@ -139,6 +146,9 @@ def decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
     n, length = block.shape
     if length < 16 or np.any(block[:, 0] != 0) or np.any(block[:, 1] > 1):
         raise ValueError('not plain CDR (XCDR1) data')
+    uniform = _decode_uniform(layout, block)
+    if uniform is not None:
+        return uniform
     little = block[:, 1] == 1
     offset = np.full(n, 8, dtype=np.int64)
     str_pos, str_len = [], []
@@ -169,8 +179,43 @@ def decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
             pos = int(str_pos[j][0 if isinstance(rows, slice) else rows[0]])
             uniq, inv = _unique_rows(sub[:, pos:pos + count - 1])
             strings.append(np.array([bytes(u).decode('utf-8', 'replace') for u in uniq])[inv])
-        pieces.append((rows, Decoded(sec * _NS + nsec, tuple(strings), values)))
+        pieces.append((rows, Decoded(sec * _NS + nsec, tuple(strings), values, nsec)))
     return _combine(pieces, n, layout)
+
+
+def _decode_uniform(layout: StampedLayout, block: np.ndarray) -> Decoded | None:
+    """``decode_block`` when every message is laid out as the first (one endianness, the same
+    string lengths: one publisher's stream), in a few numpy calls (a node decodes batches of a
+    few messages, where the general path's fixed cost dominates); None otherwise."""
+    n, length = block.shape
+    first = block[0].tobytes()
+    order: Literal['little', 'big'] = 'little' if first[1] == 1 else 'big'
+    offset, spans = 8, []
+    for _ in range(layout.n_strings):
+        offset = _align(offset, 4)
+        if 4 + offset + 4 > length:
+            return None
+        count = int.from_bytes(first[4 + offset:8 + offset], order)
+        if count < 1:
+            return None
+        spans.append((4 + offset, 8 + offset + count))  # length field .. NUL
+        offset += 4 + count
+    body = 4 + _align(offset, 8)
+    if body + 8 * layout.n_doubles > length:
+        return None
+    strings = []
+    for start, stop in spans:
+        column = block[:, start:stop]
+        if n > 1 and not (column == column[0]).all():
+            return None
+        strings.append(np.full(n, first[start + 4:stop - 1].decode('utf-8', 'replace')))
+    if n > 1 and not (block[:, 1] == block[0, 1]).all():
+        return None
+    end = '<' if order == 'little' else '>'
+    head = block[:, 4:12].copy().view(end + 'u4')
+    sec, nsec = head[:, 0].view(end + 'i4').astype(np.int64), head[:, 1].astype(np.int64)
+    values = block[:, body:body + 8 * layout.n_doubles].copy().view(end + 'f8')
+    return Decoded(sec * _NS + nsec, tuple(strings), values, nsec)
 
 
 def _combine(pieces: Sequence[tuple[np.ndarray | slice, Decoded]], n: int,
@@ -178,23 +223,26 @@ def _combine(pieces: Sequence[tuple[np.ndarray | slice, Decoded]], n: int,
     """Scatter decoded parts (row indices, part) into one Decoded of n rows."""
     if len(pieces) == 1 and isinstance(pieces[0][0], slice):
         return pieces[0][1]
-    stamps = np.empty(n, dtype=np.int64)
+    stamps, nanosec = np.empty(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     values = np.empty((n, layout.n_doubles))
     strings = [np.empty(n, dtype=np.result_type(*(p.strings[j] for _, p in pieces)))
                for j in range(layout.n_strings)]
     for rows, part in pieces:
         stamps[rows] = part.stamps_ns
+        if part.nanosec is not None:  # always, for parts of decode_block
+            nanosec[rows] = part.nanosec
         values[rows] = part.values
         for j, text in enumerate(part.strings):
             strings[j][rows] = text
-    return Decoded(stamps, tuple(strings), values)
+    return Decoded(stamps, tuple(strings), values, nanosec)
 
 
 def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded:
     """Decode N serialised messages of ``layout``; ValueError if any is not plain CDR."""
     if not raws:
         empty = tuple(np.zeros(0, dtype=str) for _ in range(layout.n_strings))
-        return Decoded(np.zeros(0, dtype=np.int64), empty, np.zeros((0, layout.n_doubles)))
+        return Decoded(np.zeros(0, dtype=np.int64), empty, np.zeros((0, layout.n_doubles)),
+                       np.zeros(0, dtype=np.int64))
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
     if np.all(lengths == lengths[0]):
         block = np.frombuffer(b''.join(raws), np.uint8)
@@ -205,3 +253,40 @@ def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded
         block = np.frombuffer(b''.join([raws[i] for i in rows.tolist()]), np.uint8)
         pieces.append((rows, decode_block(layout, block.reshape(rows.size, int(length)))))
     return _combine(pieces, len(raws), layout)
+
+
+def _unreadable(raw: bytes) -> tuple[int, int, tuple[str, ...], np.ndarray]:
+    raise ValueError('not plain CDR and no fallback')
+
+
+def decode_valid(layout: StampedLayout, raws: Sequence[bytes],
+                 fallback: Fallback | None = None) -> tuple[Decoded, np.ndarray]:
+    """Decode what can be read of N messages, never raising: the plain CDR ones vectorised,
+    the others through ``fallback`` (e.g. a general deserialiser for other encodings); those
+    neither reads (truncated, garbage) are left out. Returns the decoded messages and their
+    indices into ``raws`` (increasing)."""
+    try:
+        return decode(layout, raws), np.arange(len(raws))
+    except ValueError:
+        pass
+    plain = np.fromiter((well_formed(layout, r) for r in raws), dtype=bool, count=len(raws))
+    fast = decode(layout, [raws[i] for i in np.flatnonzero(plain).tolist()])
+    read = fallback if fallback is not None else _unreadable
+    rows = []
+    for i in np.flatnonzero(~plain).tolist():
+        try:
+            rows.append((i, *read(raws[i])))
+        except Exception:  # whatever a deserialiser raises on bad bytes
+            continue
+    if not rows:
+        return fast, np.flatnonzero(plain)
+    keep = np.concatenate([np.flatnonzero(plain), [r[0] for r in rows]]).astype(np.int64)
+    order = np.argsort(keep, kind='stable')
+    stamps = np.concatenate([fast.stamps_ns, np.array([r[1] for r in rows], np.int64)])
+    nanosec = np.concatenate([fast.nanosec, np.array([r[2] for r in rows], np.int64)])
+    strings = tuple(np.concatenate([fast.strings[j], np.array([r[3][j] for r in rows], str)])
+                    for j in range(layout.n_strings))
+    values = np.concatenate([fast.values, np.array([r[4] for r in rows], float).reshape(
+        -1, layout.n_doubles)])
+    return (Decoded(stamps[order], tuple(t[order] for t in strings), values[order],
+                    nanosec[order]), keep[order])

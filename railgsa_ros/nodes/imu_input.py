@@ -1,13 +1,23 @@
-"""IMU and odometry intake shared by the railgsa nodes: subscriptions and conversion only.
+"""IMU and odometry intake shared by the railgsa nodes: raw subscriptions read by a thread.
 
 Subscribes ``imu/data`` (depth ``imu_qos_depth``, ``imu_reliability``) and, with ``use_odom``,
 ``odom`` (``odom_reliability``, the same depth: odometry comes slower than the IMU, so its reader
 covers at least as long a stall; a dropped odometry message makes IMU samples INVALID for want of
 a speed, a decision that would then depend on the node's load).
-The IMU callback takes the message it was called for plus every message already waiting in the
-reader history and hands them over as one list, so a busy node works on growing batches instead
-of falling behind. ``convert`` turns such a list into arrays (malformed messages dropped and
-counted); every input decision (axis, frame policy, speed, noise, quality) is the core's
+
+Both are serialized (raw) subscriptions of the node itself: its name, namespace and remaps apply
+as to any of its subscriptions, and no second node appears in the graph. No executor waits on
+them: a reader thread waits on them alone and hands everything waiting over as one batch of bytes,
+``on_input(imu, odom)`` (odometry first in the node's use), so a busy node works on growing
+batches instead of falling behind and the 1 kHz stream never wakes the executor. Measured
+cross-process at 1 kHz (docs/nodes.md): an rclpy executor dispatching raw messages to a callback
+that does nothing costs a lifecycle node 25-28 % of a core; this thread, 6 %.
+``period_s`` > 0 hands over at most one batch per period (the batches start ``period_s``
+apart, or back to back when one takes longer); after ``idle_flush_s`` without input,
+``on_idle()`` is called every ``idle_flush_s`` / 2 (at most 0.1 s).
+``convert`` / ``odometry`` decode such batches vectorised (:mod:`imu_conversion`; rclpy's
+deserialiser for other encodings), count and drop malformed messages; every input decision
+(axis, frame policy, speed, noise, quality) is the core's
 :class:`~railgsa_ros.inverse.policy.InputPolicy`. ``report`` is the 'imu input' diagnostic task.
 """
 
@@ -15,125 +25,176 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack, suppress
+import threading
+import time
 from typing import Any
 
 from nav_msgs.msg import Odometry
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message
+from rclpy.type_support import check_is_valid_msg_type
 from sensor_msgs.msg import Imu
 
+from railgsa_ros.bag.cdr import Fallback
+from railgsa_ros.bag.messages import flatten
 from railgsa_ros.inverse.sanitize import REASONS
 from railgsa_ros.nodes.diagnostics import OK, STALE, WARN, Report
-from railgsa_ros.nodes.imu_conversion import ImuBatch, imu_batch, odom_speed
+from railgsa_ros.nodes.imu_conversion import ImuBatch, imu_batch, odometry_speeds
 from railgsa_ros.nodes.qos import sensor_qos
 
-MAX_BATCH = 2000  #: messages handed over per callback at most
+MAX_BATCH = 5000  #: IMU messages handed over per batch at most
 #: rejection reasons on /diagnostics: the core sanitiser's plus malformed messages
 REJECT_REASONS = (*REASONS, 'malformed')
+JOIN_TIMEOUT_S = 5.0  #: longest wait for the reader thread to finish its batch on stop
+
+
+def deserializer(msg_cls: type) -> Fallback:
+    """rclpy's general deserialiser as a ``cdr.decode_valid`` fallback for ``msg_cls``."""
+    msgtype = f'{msg_cls.__module__.split(".")[0]}/msg/{msg_cls.__name__}'
+
+    def read(raw: bytes) -> tuple:
+        msg = deserialize_message(raw, msg_cls)
+        stamp, strings, body = flatten(msg, msgtype)
+        return stamp, int(msg.header.stamp.nanosec), strings, body
+    return read
+
+
+class RawSubscription:
+    """A serialized subscription of ``node`` that no executor waits on (``take`` polls it)."""
+
+    def __init__(self, node: Node, msg_cls: type, topic: str, qos: QoSProfile) -> None:
+        check_is_valid_msg_type(msg_cls)  # imports the type support
+        self.msg_cls = msg_cls
+        with node.handle:
+            self.handle = _rclpy.Subscription(node.handle, msg_cls, topic,
+                                              qos.get_c_qos_profile())
+        self.topic_name: str = self.handle.get_topic_name()
+
+    def take(self, limit: int) -> list[bytes]:
+        """Up to ``limit`` waiting messages (bytes), oldest first."""
+        out: list[bytes] = []
+        with self.handle:
+            while len(out) < limit:
+                taken = self.handle.take_message(self.msg_cls, True)
+                if taken is None:
+                    break
+                out.append(taken[0])
+        return out
+
+    def destroy(self) -> None:
+        self.handle.destroy_when_not_in_use()
 
 
 class ImuIntake:
-    """Subscriptions and conversion for the IMU and odometry; ``counts`` holds received,
-    malformed and odom_malformed.
-
-    With ``on_messages`` the IMU subscription calls it with every waiting message; without it
-    the subscription belongs to a helper node ``<node>_imu_reader`` that no executor spins and
-    the owner polls ``take()`` (the 1 kHz stream then never wakes the executor).
-    ``on_odometry(stamp_ns, speed_mps)`` gets every odometry message with a valid stamp.
-    """
+    """The raw IMU and odometry subscriptions, their reader thread and the conversion;
+    ``counts`` holds received, malformed and odom_malformed."""
 
     def __init__(self, node: Node, values: Mapping[str, Any],
-                 on_messages: Callable[[list[Imu]], None] | None = None,
-                 on_odometry: Callable[[int, float], None] | None = None) -> None:
-        self._node = node
-        self._on_messages = on_messages
-        self._on_odometry = on_odometry
+                 on_input: Callable[[list[bytes], list[bytes]], None],
+                 on_idle: Callable[[], None], period_s: float = 0.0) -> None:
+        self._node, self._on_input, self._on_idle = node, on_input, on_idle
         self.counts: Counter[str] = Counter()
         self.depth = int(values['imu_qos_depth'])  #: reader history, messages
-        self._reader = None if on_messages is not None else Node(
-            f'{node.get_name()}_imu_reader', context=node.context,
-            namespace=node.get_namespace())
-        self.sub = (self._reader or node).create_subscription(
-            Imu, 'imu/data', self._on_imu,
-            sensor_qos(values['imu_qos_depth'], values['imu_reliability']))
-        self._odom_sub = node.create_subscription(
-            Odometry, 'odom', self._on_odom,
-            sensor_qos(self.depth, values['odom_reliability'])) if values['use_odom'] else None
+        self.period_s = float(period_s)
+        self._idle_ns = int(min(0.1, values['idle_flush_s'] / 2) * 1e9)
+        self.imu = RawSubscription(node, Imu, 'imu/data', sensor_qos(
+            self.depth, values['imu_reliability']))
+        self.odom = RawSubscription(node, Odometry, 'odom', sensor_qos(
+            self.depth, values['odom_reliability'])) if values['use_odom'] else None
+        self._fallback = {Imu: deserializer(Imu), Odometry: deserializer(Odometry)}
+        self._wake = _rclpy.GuardCondition(node.context.handle)
+        self._stopping = False
+        self._thread = threading.Thread(target=self._read, daemon=True,
+                                        name=f'{node.get_name()}_imu_reader')
+        node.context.on_shutdown(self.stop)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ reader thread
+    def _read(self) -> None:
+        subs = [s.handle for s in (self.imu, self.odom) if s is not None]
+        wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self._node.context.handle)
+        while not self._stopping:
+            try:
+                self._wait(wait_set, subs, self._idle_ns)
+                if self._stopping:
+                    return
+                started = time.monotonic()
+                imu, odom = self.take(MAX_BATCH)
+                if imu or odom:
+                    self._on_input(imu, odom)
+                else:
+                    self._on_idle()
+                rest = self.period_s - (time.monotonic() - started)
+                if rest > 0:
+                    self._wait(wait_set, [], int(rest * 1e9))
+            except Exception as exc:  # the node must survive anything; the core is guarded
+                if self._stopping:
+                    return
+                self._node.get_logger().error(f'imu reader: {exc!r}',
+                                              throttle_duration_sec=1.0)
+                time.sleep(0.01)
+
+    def _wait(self, wait_set: Any, subs: list[Any], timeout_ns: int) -> None:
+        """Wait until one of ``subs`` has a message, ``stop`` or ``timeout_ns``."""
+        with ExitStack() as in_use:  # none is destroyed while waited on
+            for handle in (self._wake, *subs):
+                in_use.enter_context(handle)
+            wait_set.clear_entities()
+            for sub in subs:
+                wait_set.add_subscription(sub)
+            wait_set.add_guard_condition(self._wake)
+            wait_set.wait(timeout_ns)
+
+    def take(self, limit: int) -> tuple[list[bytes], list[bytes]]:
+        """Up to ``limit`` waiting IMU messages and every waiting odometry message."""
+        imu = self.imu.take(limit)
+        return imu, [] if self.odom is None else self.odom.take(self.depth)
+
+    def stop(self) -> None:
+        """Stop the reader thread (it finishes the batch in hand); idempotent."""
+        if self._stopping:
+            return
+        self._stopping = True
+        with suppress(Exception):  # a context already shut down ends the wait by itself
+            self._wake.trigger_guard_condition()
+        if self._thread is not threading.current_thread():
+            self._thread.join(JOIN_TIMEOUT_S)
 
     def destroy(self) -> None:
-        """Destroy the subscriptions (and the helper reader node)."""
-        if self._reader is not None:
-            self._reader.destroy_node()
-        else:
-            self._node.destroy_subscription(self.sub)
-        if self._odom_sub is not None:
-            self._node.destroy_subscription(self._odom_sub)
+        """Stop the thread and destroy the subscriptions."""
+        self.stop()
+        for sub in (self.imu, self.odom):
+            if sub is not None:
+                sub.destroy()
+        self._wake.destroy_when_not_in_use()
 
-    def take(self, first: list[Imu] | None = None, limit: int = MAX_BATCH) -> list[Imu]:
-        """``first`` plus the messages waiting in the reader history, ``limit`` at most; then
-        every odometry message waiting goes to ``on_odometry`` first, so the policy knows the
-        odometry that arrived with these IMU samples before it gets them: its speed decisions
-        (odom_timeout_s) then depend on the stamps, not on how the executor interleaved the two
-        topics (a batch of 2000 spans 2 s, more than the timeout)."""
-        msgs = first or []
-        handle = self.sub.handle
-        with handle:
-            while len(msgs) < limit:
-                taken = handle.take_message(Imu, False)
-                if taken is None:
-                    break
-                msgs.append(taken[0])
-        self.take_odometry()
-        return msgs
-
-    def take_odometry(self) -> None:
-        """Hand every odometry message waiting in its reader history to ``on_odometry``."""
-        if self._odom_sub is None:
-            return
-        handle = self._odom_sub.handle
-        while True:
-            with handle:
-                taken = handle.take_message(Odometry, False)
-            if taken is None:
-                return
-            self._on_odom(taken[0])
-
-    def take_waiting(self) -> list[Imu]:
-        """The messages waiting now, at most one reader history (bounded while a burst still
-        comes in: for the last batch before deactivate and shutdown)."""
-        return self.take(limit=self.depth)
-
-    def _on_imu(self, msg: Imu) -> None:
-        if self._on_messages is not None:
-            self._on_messages(self.take([msg]))
-
-    def _on_odom(self, msg: Odometry) -> None:
-        sample = odom_speed(msg)
-        if sample is None:
-            self.counts['odom_malformed'] += 1
-        elif self._on_odometry is not None:
-            self._on_odometry(*sample)
-
-    def convert(self, msgs: Sequence[Any]) -> ImuBatch | None:
-        """The well-formed messages of a list as arrays (counted: received, malformed); None if
-        there is none."""
-        self.counts['received'] += len(msgs)
-        batch = imu_batch(msgs)
-        bad = int(batch.malformed.sum())
-        self.counts['malformed'] += bad
-        if bad == len(batch):
+    # ------------------------------------------------------------------ conversion
+    def convert(self, raws: Sequence[bytes]) -> ImuBatch | None:
+        """The well-formed messages of serialized Imu messages as arrays (counted: received,
+        malformed); None if there is none."""
+        self.counts['received'] += len(raws)
+        if not raws:
             return None
-        if not bad:
-            return batch
-        good = ~batch.malformed
-        return ImuBatch(batch.stamps_ns[good], batch.accel[good], batch.frame_ids[good],
-                        batch.covariance[good], batch.malformed[good])
+        batch, bad = imu_batch(raws, self._fallback[Imu])
+        self.counts['malformed'] += bad
+        return batch if len(batch) else None
+
+    def odometry(self, raws: Sequence[bytes]) -> tuple[Any, Any]:
+        """(stamps ns, speeds m/s) of serialized Odometry messages; malformed ones counted as
+        odom_malformed and left out."""
+        stamps, speeds, bad = odometry_speeds(raws, self._fallback[Odometry])
+        self.counts['odom_malformed'] += bad
+        return stamps, speeds
 
     def report(self, totals: Mapping[str, int], delta: Mapping[str, int], elapsed_s: float,
                expected_frame_id: str) -> Report:
         """The 'imu input' task: STALE before the first message, WARN without input in the
         period or with rejections, gaps, time resets or accepted wrong frames in it, else OK;
         totals and period deltas."""
-        values: dict[str, object] = {'topic': self.sub.topic_name,
+        values: dict[str, object] = {'topic': self.imu.topic_name,
                                      'rate_hz': delta.get('received', 0) / elapsed_s}
         for key in ('received', 'accepted', 'gap', 'reset', 'time_reset', 'bridged',
                     'wrong_frame_accepted', 'odom_received', 'odom_malformed', 'odom_nan',

@@ -16,11 +16,17 @@ to 2000 outputs after a stall) still overflowed a RELIABLE depth-1000 reader (20
 in one run).
 ``finish`` (deactivate, shutdown) publishes what is left at the same pace, then waits (bounded)
 until every matched reader acknowledged everything, so nothing dies with the writer.
+
+Messages are encoded per slice with the vectorised codec (:func:`railgsa_ros.bag.cdr.encode`)
+and published serialized: the same bytes rclpy would make from a PointStamped or
+Vector3Stamped, without a Python message object per sample. ``lock`` (the node's) is held by
+the pacing timer, since the node's reader thread puts outputs.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from contextlib import AbstractContextManager
 import time
 from typing import Any
 
@@ -29,7 +35,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 
-from railgsa_ros.nodes.imu_conversion import NS_PER_S
+from railgsa_ros.bag.cdr import StampedLayout, encode
 
 PERIOD_S = 0.01  #: pacing timer period while outputs wait, s
 #: longest wait for the readers' acknowledgements in ``finish``, s (Fast DDS heartbeat: 3 s)
@@ -37,12 +43,13 @@ ACK_TIMEOUT_S = 3.5
 
 
 class OutputPacer:
-    """Queue and paced publisher of stamped 3-vectors (PointStamped.point or
-    Vector3Stamped.vector); ``msg`` is the message reused for every sample (frame set)."""
+    """Queue and paced publisher of stamped 3-vectors (``layout`` PointStamped or
+    Vector3Stamped, header.frame_id ``frame``)."""
 
-    def __init__(self, node: Node, publisher: Any, msg: Any, field: str, depth: int,
-                 flush_rate_hz: float) -> None:
-        self._node, self._pub, self._msg, self._field = node, publisher, msg, field
+    def __init__(self, node: Node, publisher: Any, layout: StampedLayout, frame: str,
+                 depth: int, flush_rate_hz: float, lock: AbstractContextManager) -> None:
+        self._node, self._pub, self._layout, self._frame = node, publisher, layout, frame
+        self._lock = lock
         self.slice = max(1, depth // 8)  #: most messages published per timer period
         self.flush_rate_hz = float(flush_rate_hz)
         self._queue: deque[tuple[np.ndarray, np.ndarray]] = deque()  # (stamps, (K, 3)) parts
@@ -52,7 +59,7 @@ class OutputPacer:
         self._live = 0  # messages of live input not yet published (sent at the input's pace)
         self._credit = 0.0  # flushed messages that may go out now (grows at flush_rate_hz)
         self._last = time.monotonic()
-        self._timer = node.create_timer(PERIOD_S, self.drain,
+        self._timer = node.create_timer(PERIOD_S, self._on_timer,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._timer.cancel()
 
@@ -68,8 +75,12 @@ class OutputPacer:
         self._live += min(live, stamps_ns.size)
         self.drain()
 
+    def _on_timer(self) -> None:
+        with self._lock:
+            self.drain()
+
     def drain(self) -> int:
-        """Publish up to one slice allowed by the pace; returns the count (also the timer)."""
+        """Publish up to one slice allowed by the pace; returns the count."""
         now = time.monotonic()
         self._credit = min(self._credit + self.flush_rate_hz * (now - self._last), self.slice)
         self._last = now
@@ -104,16 +115,12 @@ class OutputPacer:
     def _publish(self, budget: int) -> int:
         """Publish up to ``budget`` queued messages in order; returns the count."""
         sent = 0
-        msg = self._msg
-        stamp, vec = msg.header.stamp, getattr(msg, self._field)
+        publish = self._pub.publish
         while self._queue and sent < budget:
             stamps, xyz = self._queue[0]
             take = min(budget - sent, stamps.size)
-            sec, nsec = np.divmod(stamps[:take], NS_PER_S)
-            for s, ns, (x, y, z) in zip(sec.tolist(), nsec.tolist(), xyz[:take].tolist(),
-                                        strict=True):
-                stamp.sec, stamp.nanosec, vec.x, vec.y, vec.z = s, ns, x, y, z
-                self._pub.publish(msg)
+            for data in encode(self._layout, stamps[:take], [self._frame], xyz[:take]):
+                publish(data)
             if take == stamps.size:
                 self._queue.popleft()
             else:

@@ -12,13 +12,12 @@ inverse for the rule's parameter points as one vectorised bank
   one status per uncertain parameter (sobol_first, sobol_total, delta) and a ``summary`` status;
 - ``/diagnostics``: input counts by reason, compute time per window, fraction of one core used.
 
-Input polling: :class:`~railgsa_ros.nodes.imu_input.ImuIntake` in polled mode (the imu/data
-subscription belongs to a helper node ``uncertainty_node_imu_reader`` that no executor spins, so
-the 1 kHz stream never wakes the executor); a steady-clock timer takes every waiting message
-every ``process_period_s`` and processes them as one batch (measured: the per-message executor
-dispatch is most of a Python node's cost at 1 kHz). All parameters are read-only: to change
-them, deactivate, clean up, set, configure and activate again, or restart. A managed lifecycle
-node like irregularity_node (:mod:`railgsa_ros.nodes.lifecycle`), flushing like it on
+Input: the same :class:`~railgsa_ros.nodes.stream_node.StreamNode` data path as
+irregularity_node (serialized messages read by a thread that no executor wakes, decoded
+vectorised), handing over at most one batch every ``process_period_s``: the bank's cost per call
+is high, so batches of 50 samples keep it low. All parameters are read-only: to change them,
+deactivate, clean up, set, configure and activate again, or restart. A managed lifecycle node
+like irregularity_node (:mod:`railgsa_ros.nodes.lifecycle`), flushing like it on
 ``idle_flush_s`` without input, on deactivate and on shutdown, and publishing the band through an
 :class:`~railgsa_ros.nodes.pacing.OutputPacer`. See docs/uncertainty_node.md.
 """
@@ -29,8 +28,7 @@ import railgsa_ros.nodes.early_signals  # noqa: F401  (first: exit 0 on a signal
 
 # isort: split
 
-from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping
 from dataclasses import fields, replace
 import sys
 import time
@@ -39,26 +37,12 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
-from rclpy.clock import Clock, ClockType
-from sensor_msgs.msg import Imu
 
-from railgsa_ros.inverse.policy import PolicyOptions
-from railgsa_ros.nodes.diagnostics import (
-    ERROR,
-    OK,
-    STALE,
-    Deltas,
-    DiagnosticsPublisher,
-    HardwareId,
-    Report,
-    checks_report,
-    make_status,
-    quality_values,
-)
-from railgsa_ros.nodes.imu_conversion import NS_PER_S
-from railgsa_ros.nodes.imu_input import ImuIntake
-from railgsa_ros.nodes.lifecycle import ManagedNode, run
-from railgsa_ros.nodes.pacing import OutputPacer
+from railgsa_ros.bag.messages import VECTOR3_STAMPED
+from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
+from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, Report, make_status, quality_values
+from railgsa_ros.nodes.imu_conversion import NS_PER_S, ImuBatch
+from railgsa_ros.nodes.lifecycle import run
 from railgsa_ros.nodes.params import accept_integers, declare
 from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
@@ -68,13 +52,12 @@ from railgsa_ros.nodes.specs import (
     VEHICLE_SPECS,
     vehicle_values,
 )
+from railgsa_ros.nodes.stream_node import OUTPUT_FRAME, StreamNode
 from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream, Update
 from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
 from railgsa_ros.vehicle import VehicleParams
 
 NODE_NAME = 'uncertainty_node'
-OUTPUT_FRAME = 'track'
-MAX_BATCH = 5000  # messages taken from the reader history per timer tick
 
 #: irregularity_node's inversion, vehicle and input parameters (same names and defaults), then
 #: the uncertainty parameters; all read-only.
@@ -105,30 +88,18 @@ def sensitivity_message(record: Sensitivity, hardware_id: object) -> DiagnosticA
     return msg
 
 
-class UncertaintyNode(ManagedNode):
+class UncertaintyNode(StreamNode):
     """The managed node; with autostart (default), ConfigError from the constructor when the
     parameters are invalid."""
 
     NODE_NAME, SPECS = NODE_NAME, SPECS
+    PERIOD_PARAM = 'process_period_s'
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self._values: dict[str, Any] = {}
         self.stream: UncertaintyStream | None = None
-        self._retired: Counter[str] = Counter()
-        self._counts: Counter[str] = Counter()
         self._window_ms = (float('nan'), 0.0)  # last, max compute time per window
         self._cpu = (time.monotonic(), time.process_time())
-        self._deltas = {task: Deltas() for task in ('imu', 'uncertainty')}
-        self._first_stamp_ns = -1  # first IMU stamp processed since the process started
-        self._intake: ImuIntake | None = None
-        self._diagnostics: DiagnosticsPublisher | None = None
-        self._hardware = HardwareId('')
-        self._timer: Any = None
-        self._pubs: tuple[Any, ...] = ()
-        self._pacer: OutputPacer | None = None
-        self._last_input = time.monotonic()  # steady time of the last IMU batch, s
-        self._unflushed = False  # samples pushed since the last flush
         self.add_pre_set_parameters_callback(accept_integers(SPECS))
         self.autostart()
 
@@ -143,122 +114,52 @@ class UncertaintyNode(ManagedNode):
         self.dists = load_uncertainty(values['uncertainty_file']) if \
             values['uncertainty_file'] else table3(self.vehicle)
         self._values = values
-        self._hardware.parameter = values['hardware_id']
         self.stream = self._new_stream()
-        self._pubs = (
-            self.create_lifecycle_publisher(Vector3Stamped, 'track/irregularity_band',
-                                            output_qos(values['output_qos_depth'])),
-            self.create_lifecycle_publisher(DiagnosticArray, 'track/sensitivity',
-                                            output_qos(values['sensitivity_qos_depth'])))
-        msg = Vector3Stamped()
-        msg.header.frame_id = OUTPUT_FRAME
-        self._pacer = OutputPacer(self, self._pubs[0], msg, 'vector', values['output_qos_depth'],
-                                  values['flush_rate_hz'])
+        self.create_output(Vector3Stamped, 'track/irregularity_band', VECTOR3_STAMPED)
+        self._pubs.append(self.create_lifecycle_publisher(
+            DiagnosticArray, 'track/sensitivity', output_qos(values['sensitivity_qos_depth'])))
 
     def activate(self) -> None:
-        """The polled IMU intake, its timer and the diagnostics reporter."""
-        values = self._values
-        self._intake = ImuIntake(self, values, on_odometry=self._on_odometry)
-        self._timer = self.create_timer(values['process_period_s'], self._on_timer,
-                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._diagnostics = DiagnosticsPublisher(self, self._hardware)
-        self._diagnostics.add('imu input', self._report_input)
-        self._diagnostics.add('uncertainty', self._report_uncertainty)
-        self._diagnostics.add('input checks', lambda _: checks_report(self.stream.policy))
+        """The intake and the diagnostics reporter."""
+        super().activate()
+        self.add_task('uncertainty', self._report_uncertainty)
 
-    def deactivate(self) -> None:
-        """Process the input waiting in the reader (one history at most), flush the stream,
-        publish and await the acknowledgement of every band output; then stop taking input and
-        reporting."""
-        if self._intake is not None:
-            if msgs := self._intake.take_waiting():
-                self.process(msgs)
-            self._flush('flush_deactivate')
-            self._pacer.finish()
-            self._counts.update(self._intake.counts)
-            self._intake.destroy()
-            self._intake = None
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
-        if self._diagnostics is not None:
-            self._diagnostics.destroy()
-            self._diagnostics = None
-
-    def release(self) -> None:
-        """Drop the stream (its counters are kept) and the publishers."""
+    def release_core(self) -> None:
+        """Drop the stream (its counters are kept)."""
         if self.stream is not None:
             self._retired.update(self.stream.counters)
             self.stream = None
-        if self._pacer is not None:
-            self._counts['published'] += self._pacer.published
-            self._pacer.destroy()
-            self._pacer = None
-        for pub in self._pubs:
-            self.destroy_lifecycle_publisher(pub)
-        self._pubs = ()
 
     # ------------------------------------------------------------------ data path
-    def _on_timer(self) -> None:
-        """Take every message waiting in the reader history and process them; none for
-        idle_flush_s: the stream ended, flush what the filters hold."""
-        msgs = self._intake.take(limit=MAX_BATCH) if self._intake is not None else []
-        if msgs:
-            self.process(msgs)
-        elif time.monotonic() - self._last_input >= self._values['idle_flush_s']:
-            self._flush('flush_idle')
+    @property
+    def input_policy(self) -> InputPolicy | None:
+        return None if self.stream is None else self.stream.policy
 
-    def _flush(self, reason: str) -> None:
-        """Flush the stream (a stream ended): publish its pending band and windows."""
-        if self.stream is None or not self._unflushed:
-            return
-        self._unflushed = False
-        self._counts[reason] += 1
-        update = self._guarded(self.stream.flush)
-        if update is not None:
-            self._publish_update(update, 0)
+    def core_counters(self) -> Mapping[str, int]:
+        return self.stream.counters
 
-    def process(self, msgs: Sequence[Imu]) -> Band | None:
-        """Convert, push through the stream, publish band and windows; returns the band (None
-        when not active or nothing was accepted)."""
-        if self._intake is None or self.stream is None:
-            return None
-        self._last_input = time.monotonic()
-        batch = self._intake.convert(msgs)
+    def core_imu(self, batch: ImuBatch | None) -> Update | None:
         if batch is None:
             return None
-        if self._first_stamp_ns < 0:
-            self._first_stamp_ns = int(batch.stamps_ns[0])
-        self._hardware.see(batch.frame_ids)
-        self._unflushed = True
-        held = self.stream.policy.held + len(batch)
-        update = self._guarded(lambda: self.stream.imu(batch.stamps_ns, batch.accel,
-                                                       batch.frame_ids, batch.covariance))
-        if update is None:
-            return None
-        self._publish_update(update, self._released(held))
-        return update.band
+        return self._guarded(lambda: self.stream.imu(batch.stamps_ns, batch.accel,
+                                                     batch.frame_ids, batch.covariance))
 
-    def _on_odometry(self, stamp_ns: int, speed_mps: float) -> None:
-        """An odometry sample: IMU samples waiting for their speed may become final."""
-        if self.stream is not None:
-            held = self.stream.policy.held
-            update = self._guarded(lambda: self.stream.odometry([stamp_ns], [speed_mps]))
-            if update is not None:
-                self._publish_update(update, self._released(held))
+    def core_odometry(self, stamps_ns: np.ndarray, speeds_mps: np.ndarray) -> Update | None:
+        return self._guarded(lambda: self.stream.odometry(stamps_ns, speeds_mps))
 
-    def _released(self, held: int) -> int:
-        """Input samples that went into the filters since the policy held ``held``: one live
-        output each; the rest (a flush, a reset) is paced (OutputPacer.put)."""
-        return max(0, held - self.stream.policy.held)
+    def core_flush(self) -> Update | None:
+        return self._guarded(self.stream.flush)
 
     def _guarded(self, step: Any) -> Update | None:
         """``step()`` of the core through ``guarded``: on an exception the stream is rebuilt."""
         return self.guarded(step, 'uncertainty stream', self._rebuild)
 
-    def _publish_update(self, update: Update, live: int) -> None:
+    def emit(self, update: Update | None, live: int) -> Band | None:
         """The band (one Vector3Stamped per sample, stamped with its IMU stamp, through the
-        pacer; ``live``: input samples of the batch) and the closed windows."""
+        pacer; ``live``: input samples of the batch) and the closed windows; returns the band
+        (None when nothing was accepted)."""
+        if update is None:
+            return None
         band = update.band
         if len(band):  # x lower, y mean, z upper: NaN where INVALID, widened where DEGRADED
             self._pacer.put(band.stamps_ns, np.column_stack([band.lower_m, band.mean_m,
@@ -268,6 +169,7 @@ class UncertaintyNode(ManagedNode):
             last = record.compute_s * 1e3
             self._window_ms = (last, max(self._window_ms[1], last))
         self._counts['windows'] += len(update.windows)
+        return band
 
     def _new_stream(self) -> UncertaintyStream:
         """A stream (its input policy with the bank) for the configuration."""
@@ -292,18 +194,6 @@ class UncertaintyNode(ManagedNode):
         return (f'{inv.method}, band {inv.band}, {design.points} rule points '
                 f'({self.config.rule}, order {self.config.order}, {design.fit}) over '
                 f'{", ".join(design.names)}: {self.topic_line(inputs, outputs)}')
-
-    def counters(self) -> dict[str, int]:
-        """Cumulative counts by reason over the node's life."""
-        live = [] if self.stream is None else [Counter(self.stream.counters)]
-        intake = [] if self._intake is None else [self._intake.counts]
-        paced = Counter() if self._pacer is None else Counter(published=self._pacer.published)
-        return dict(sum((*live, *intake, self._counts, paced), self._retired.copy()))
-
-    def _report_input(self, elapsed_s: float) -> Report:
-        totals = self.counters()
-        return self._intake.report(totals, self._deltas['imu'](totals), elapsed_s,
-                                   self.config.inversion.frame_id)
 
     def _report_uncertainty(self, elapsed_s: float) -> Report:
         now = (time.monotonic(), time.process_time())
