@@ -15,8 +15,9 @@ Then each command runs as its own process pinned to one CPU with OPENBLAS_NUM_TH
 - ``railgsa review BAG --out DIR --no-uncertainty`` (nominal only) and the full review.
 
 Each row prints wall and CPU seconds, times real time from both (CPU time suffers less from
-other work on a shared machine), the ratio to the baseline's wall time, and the process's peak
-resident memory (ru_maxrss of ``os.wait4``) with its ratio to the baseline's.
+other work on a shared machine), the ratio to the baseline's wall time, the process's peak
+resident memory (ru_maxrss of ``os.wait4``) with its ratio to the baseline's, and the machine's
+1-minute load average when the row ended (how shared the machine was).
 
 Usage: python benchmarks/bench_memory.py [--hours 0.5 2 10] [--simulate-hours 0.5]
                                          [--rows baseline invert review-nominal review]
@@ -99,8 +100,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--hours', type=float, nargs='+', default=[0.5, 2.0, 10.0])
     parser.add_argument('--simulate-hours', type=float, nargs='*', default=[0.5],
-                        help='durations for the simulate rows (slow: ~the whole run in memory '
-                             'until railgsa simulate streams)')
+                        help='durations for the simulate rows')
     parser.add_argument('--rows', nargs='+', choices=ROWS, default=list(ROWS))
     parser.add_argument('--base-seconds', type=float, default=600.0)
     parser.add_argument('--speed', type=float, default=30.0)
@@ -108,7 +108,7 @@ def main() -> None:
     args = parser.parse_args()
     work_root = Path(tempfile.mkdtemp(prefix='bench_memory_', dir=args.dir))
     print(f'{"hours":>6} {"row":<15} {"wall s":>8} {"x real":>7} {"CPU s":>8} {"x real":>7} '
-          f'{"/base":>6} {"peak MB":>8} {"/base":>6}')
+          f'{"/base":>6} {"peak MB":>8} {"/base":>6} {"load":>5}')
     try:
         for hours in args.hours:
             work = work_root / f'{hours:g}h'
@@ -125,7 +125,8 @@ def main() -> None:
                 ratio = f'{wall / base[0]:6.2f}' if base else f'{"-":>6}'
                 mem = f'{mb / base[2]:6.2f}' if base else f'{"-":>6}'
                 print(f'{hours:6g} {row:<15} {wall:8.1f} {seconds / wall:7.0f} {cpu:8.1f} '
-                      f'{seconds / cpu:7.0f} {ratio} {mb:8.0f} {mem}', flush=True)
+                      f'{seconds / cpu:7.0f} {ratio} {mb:8.0f} {mem} {os.getloadavg()[0]:5.1f}',
+                      flush=True)
             shutil.rmtree(work)
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
