@@ -78,7 +78,7 @@ def _dropout(run, at_s, length_s):
 
 def _straight(self, gap_ns, after_ns, after, speed):
     """The old bridge: a straight line between the samples either side of the gap."""
-    return np.interp(gap_ns, [self.stamps[-1], after_ns], [self.accel[-1], after])
+    return np.interp(gap_ns, [self.stamps[-1], after_ns[0]], [self.accel[-1], after[0]])
 
 
 def test_gap_bridged_by_the_model_beats_a_straight_line_and_a_reset(clean_run, monkeypatch):
@@ -140,7 +140,7 @@ def test_fill_at_standstill_is_the_mean():
     g = GapFiller(VehicleParams().as_array(), 4.032e-7, 1000.0, 1e-5)
     stamps = np.arange(100) * 1_000_000
     g.bridge(stamps, np.full(100, 9.9), np.zeros(100, bool), np.zeros(100))
-    fill = g.fill(np.arange(100, 150) * 1_000_000, 150_000_000, 9.9, 0.0)
+    fill = g.fill(np.arange(100, 150) * 1_000_000, np.array([150_000_000]), np.array([9.9]), 0.0)
     assert np.allclose(fill, 9.9)
 
 
@@ -176,28 +176,70 @@ def test_scale_factor_checked_at_rest_against_gravity(scale, level):
     assert f'{(scale + 3e-3) * 100:+.2f} %' in rest.message
 
 
-def test_fill_covariance_is_the_error_of_the_fill_by_monte_carlo():
-    """Draws of the model process itself (history, gap, sample after): the fill's errors have
-    the variance fill_covariance says (brute-force Monte Carlo, 400 draws)."""
+@pytest.mark.parametrize('after', [1, 30])
+def test_fill_covariance_is_the_error_of_the_fill_by_monte_carlo(after):
+    """Draws of the model process itself (history, gap, ``after`` samples after it): the fill's
+    errors have the variance fill_covariance says, and through an FIR the output variance
+    error_variance says (brute-force Monte Carlo, 400 draws)."""
     rate, speed, noise = 200.0, 20.0, 1e-5
     theta = VehicleParams().as_array()
+    n = 240 + after
     filler = GapFiller(theta, 4.032e-7, rate, noise)
-    stamps = (np.arange(241) * 1e9 / rate).astype(np.int64)  # 200 history, 40 gap, 1 after
+    stamps = (np.arange(n) * 1e9 / rate).astype(np.int64)  # 200 history, 40 gap, after
     cov = filler._cov(speed)(stamps, stamps)
     rng = np.random.default_rng(4)
-    draws = rng.multivariate_normal(np.zeros(241), cov, 400, method="cholesky")
-    hist, gap = slice(0, 200), slice(200, 240)
+    draws = rng.multivariate_normal(np.zeros(n), cov, 400, method="cholesky")
+    hist, gap, post = slice(0, 200), slice(200, 240), slice(240, n)
     draws[:, hist] += rng.normal(0, np.sqrt(noise), (400, 200))
-    draws[:, 240] += rng.normal(0, np.sqrt(noise), 400)
+    draws[:, post] += rng.normal(0, np.sqrt(noise), (400, after))
     errors = []
     for y in draws:
         filler.reset()
         filler.bridge(stamps[hist], y[hist], np.zeros(200, bool), np.full(200, speed))
         filler._sum, filler._count = 0.0, 1  # the process mean is known (0) in this test
-        errors.append(filler.fill(stamps[gap], int(stamps[240]), y[240], speed) - y[gap])
+        errors.append(filler.fill(stamps[gap], stamps[post], y[post], speed) - y[gap])
     filler.reset()
     filler.bridge(stamps[hist], draws[0, hist], np.zeros(200, bool), np.full(200, speed))
-    predicted = np.diag(filler.fill_covariance(stamps[gap], int(stamps[240]), speed))
+    predicted = np.diag(filler.fill_covariance(stamps[gap], stamps[post], speed))
     measured = np.var(np.array(errors), axis=0)
     assert np.allclose(measured, predicted, rtol=0.25)  # 400 draws: 7 % sampling error
     assert predicted[20] > 3 * predicted[0]  # least known in the middle of the gap
+    taps = np.sinc(np.arange(-30, 31) / 7.0) * np.hanning(61)  # any FIR
+    outputs = np.array([np.convolve(e, taps) for e in errors])  # the outputs the fill reaches
+    variance = filler.error_variance(stamps[gap], stamps[post], speed, taps)
+    big = variance > 0.05 * variance.max()
+    assert np.allclose(np.var(outputs, axis=0)[big], variance[big], rtol=0.25)
+
+
+def test_gap_std_is_the_output_error_of_the_fill_by_monte_carlo():
+    """Model draws around a 0.2 s dropout (1 s before it, the 0.5 s hold after): the outputs
+    with the gap minus those without it are the fill's error through the band; their std
+    over 50 draws is the pipeline's gap_std_m at every output near the gap (brute force),
+    and gap_std_m is 0 where the gap is out of reach."""
+    rate, speed, noise = 200.0, 20.0, 1e-5
+    cfg = InversionConfig(rate_hz=rate)
+    stamps = (np.arange(round(20 * rate)) * 1e9 / rate).astype(np.int64) + 10 ** 18
+    window = slice(round(8 * rate), round(9.7 * rate))  # history, gap, hold
+    gap = np.zeros(stamps.size, bool)
+    gap[round(9 * rate):round(9.2 * rate)] = True
+    filler = GapFiller(VehicleParams().as_array(), cfg.track_spectrum_av, rate, noise)
+    cov = filler._cov(speed)(stamps[window], stamps[window])
+    rng = np.random.default_rng(2)
+    draws = rng.multivariate_normal(np.zeros(cov.shape[0]), cov, 50, method='cholesky')
+
+    with_gap, full = (InversionPipeline(cfg, noise_variance=noise) for _ in range(2))
+    diffs = []
+    for draw in draws:  # a pipeline starts afresh after flush
+        a = np.zeros(stamps.size)
+        a[window] = draw + rng.normal(0, np.sqrt(noise), draw.size)
+        parts = [with_gap.push(stamps[~gap], a[~gap] + cfg.gravity_mps2, speed), with_gap.flush()]
+        ref = np.concatenate([full.push(stamps, a + cfg.gravity_mps2, speed).u_m,
+                              full.flush().u_m])
+        diffs.append(np.concatenate([p.u_m for p in parts]) - ref[~gap])
+    predicted = np.concatenate([p.gap_std_m for p in parts])
+    measured = np.std(np.array(diffs), axis=0)
+    big = predicted > 0.1 * predicted.max()
+    assert big.sum() > 100
+    assert np.allclose(measured[big], predicted[big], rtol=0.3)  # 50 draws: 10 % error
+    t = (stamps[~gap] - stamps[0]) * 1e-9
+    assert np.all(predicted[(t < 5) | (t > 14)] == 0)

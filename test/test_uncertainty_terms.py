@@ -60,6 +60,8 @@ def test_noise_band_covers_the_noise_free_reconstruction_at_its_level():
 
 
 def test_sensor_terms_add_in_variance_carry_the_difference_and_floor_degraded():
+    """The terms add in variance, the delay term differences across chunks, a DEGRADED sample
+    without a gap term gets the floor, the gap term adds in variance instead of the floor."""
     config = UncertaintyConfig(delay_std_s=1e-3, scale_std=0.01)
     stamps = np.arange(10, dtype=np.int64) * 2_500_000  # 400 Hz
     mean = 1e-3 * np.sin(np.arange(10.0))
@@ -75,9 +77,16 @@ def test_sensor_terms_add_in_variance_carry_the_difference_and_floor_degraded():
                             for s in (slice(0, 5), slice(5, 10))])
     np.testing.assert_array_equal(whole, parts)  # chunking does not matter
     rate = np.diff(mean) / 2.5e-3
-    expected = np.sqrt(2e-5 ** 2 + (0.01 * mean[1:]) ** 2 + (1e-3 * rate) ** 2)
+    free = np.sqrt(2e-5 ** 2 + (0.01 * mean[1:]) ** 2 + (1e-3 * rate) ** 2)
+    expected = free.copy()
     expected[3] = max(expected[3], config.inversion.noise_limit_m)
     np.testing.assert_allclose(whole[1:], expected, rtol=1e-12)
+    # the gap term adds in variance and, where it is given, replaces the DEGRADED floor
+    gap = np.zeros(10)
+    gap[4:7] = [3e-5, 2e-4, 1e-5]
+    with_gap = SensorTerms(config, noise).std(stamps, mean, np.full(10, 20.0), quality, gap)
+    np.testing.assert_allclose(with_gap[1:], np.sqrt(free ** 2 + gap[1:] ** 2),
+                               rtol=1e-12)
 
 
 def test_exceedance_probability_against_monte_carlo():

@@ -73,6 +73,8 @@ class InversionConfig:
     gap_policy: str = _p('bridge', 'gap handling', choices=('reset', 'bridge'))
     max_bridge_s: float = _p(1.2, 'bridge policy: longest gap filled by the model (gapfill), '
                                   's', (0.0, 10.0))
+    gap_hold_s: float = _p(0.5, 'bridge policy: samples after a gap that condition its fill '
+                                '(outputs after a gap wait as long), s', (0.0, 10.0))
     saturation_mps2: float = _p(19.6133, 'accelerometer range, m/s^2 (0 = no check; '
                                                   'ADXL355 +-2 g)',
                                 (0.0, 1e4))

@@ -64,13 +64,16 @@ MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
 class Output:
     """Reconstruction: stamps_ns (K,) int64 of the IMU samples, chainage_m (K,), u_m (K,) in m,
     or (P, K) for a bank of parameter sets; quality (K,) uint8 (:class:`Quality` codes) and the
-    speed at each sample speed_mps (K,) m/s (None only in outputs built by hand)."""
+    speed at each sample speed_mps (K,) m/s (None only in outputs built by hand); gap_std_m
+    (K,) m: std of the error that filling bridged gaps leaves in u (``GapFiller.
+    error_variance``; 0 away from gaps, None in outputs built by hand)."""
 
     stamps_ns: np.ndarray
     chainage_m: np.ndarray
     u_m: np.ndarray
     quality: np.ndarray | None = None
     speed_mps: np.ndarray | None = None
+    gap_std_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.stamps_ns.size)
@@ -85,7 +88,7 @@ class Output:
         """Join outputs in order; ``channels``: P of a (P, K) bank when ``outs`` may be empty."""
         u0 = np.zeros(0) if channels is None else np.zeros((channels, 0))
         return join(outs, cls(np.zeros(0, np.int64), np.zeros(0), u0, np.zeros(0, np.uint8),
-                              np.zeros(0)))
+                              np.zeros(0), np.zeros(0)))
 
 
 def vertical(accel: np.ndarray, axis: str) -> np.ndarray:
@@ -188,9 +191,12 @@ class InversionPipeline:
             self._fir = self._band_stage()
             self.switch_period = self._fir.switch_period
             self._design_speed = cfg.min_design_speed_mps
+        self._gap_taps: dict[float, np.ndarray] = {}  # design speed -> error FIR
         self._gaps = GapFiller(np.mean(self.theta, axis=0), cfg.track_spectrum_av, cfg.rate_hz,
                                cfg.noise_std_mps2 ** 2 if noise_variance is None
-                               else float(noise_variance))
+                               else float(noise_variance),
+                               None if cfg.band == 'none' else self._error_taps,
+                               hold=round(cfg.gap_hold_s * cfg.rate_hz))
         self._chain: tuple[int, float, float] | None = None  # last stamp, chainage, speed
         self.start_chainage_m = float(start_chainage_m)  #: chainage of the first sample, m
         self._offline: list[tuple[np.ndarray, ...]] = []
@@ -320,6 +326,21 @@ class InversionPipeline:
         self._window = (2 * fir.half_delay, significant, self.decimation)
         return fir
 
+    def _error_taps(self, speed: float) -> np.ndarray:
+        """Single-rate band FIR |BP|^2 / G (2 d + 1,) from acceleration to u at the speed's
+        design (held as the band's), nominal vehicle: how a gap's fill error reaches the outputs
+        (the same response for every method)."""
+        cfg = self.config
+        v = min(max(speed, cfg.min_design_speed_mps), cfg.max_speed_mps)
+        if v not in self._gap_taps:
+            grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, v)[0], DESIGN_PERIODS)
+            lo, hi = band_edges_hz(cfg.band, v)
+            theta = self._nominal if self._nominal is not None else np.mean(self.theta, axis=0)
+            response = bandpass_power(grid, lo, hi, cfg.band_order) * \
+                inverse_response(theta, grid)[0]
+            self._gap_taps = {v: fir_taps(response, half_length(response, cfg.fir_tolerance))}
+        return self._gap_taps[v]
+
     def _start_segment(self) -> None:
         """Zero the filters and the segment's sample counter."""
         self._n = 0
@@ -330,6 +351,7 @@ class InversionPipeline:
         self._last_a = 0.0
         self._bias = (0.0, 0)  # running sum (m/s^2) and count of the segment's samples
         self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
+        self._gap_var: list[tuple[int, np.ndarray]] = []  # (first segment index, variance m^2)
         self._gaps.reset()
         if self._stage is not None:
             self._stage.reset()
@@ -337,24 +359,34 @@ class InversionPipeline:
             self._fir.reset()
 
     def _run(self, clean: Clean, quality: np.ndarray, sl: slice) -> Output:
-        """Process clean samples of one segment (input quality codes ``quality`` (N,))."""
-        cfg = self.config
+        """Process clean samples of one segment (input quality codes ``quality`` (N,)); samples
+        from a bridged gap on wait in the gap filler for its hold."""
         stamps, speed = clean.stamps_ns[sl], clean.speed[sl]
         chain = self._chainage(stamps, speed)
-        a_s = self._gaps.bridge(stamps, clean.accel[sl], clean.synthetic[sl], speed) \
-            - cfg.gravity_mps2
+        return self._feed(*self._gaps.bridge(stamps, clean.accel[sl], clean.synthetic[sl],
+                                             speed, chain, quality[sl]))
+
+    def _feed(self, stamps: np.ndarray, accel: np.ndarray, synthetic: np.ndarray,
+              speed: np.ndarray, chain: np.ndarray, quality: np.ndarray) -> Output:
+        """Samples the gap filler released (gaps filled) through bias, fade-in, method, band."""
+        if not stamps.size:
+            return self._join([])
+        cfg = self.config
+        a_s = accel - cfg.gravity_mps2
         if cfg.remove_bias:
             a_s = self._remove_bias(a_s)
         n0 = self._n + sum(x[0].size for x in self._offline)
+        self._gap_var += self._gaps.errors  # (first segment index, variance)
+        self._gaps.errors = []
         ramp = round(cfg.taper_s * cfg.rate_hz)
         if n0 < ramp:  # fade-in still running
             a_s = a_s * taper(n0 + np.arange(a_s.size), ramp)
         self._last_a = float(a_s[-1])
-        emit = ~clean.synthetic[sl]
+        emit = ~synthetic
         if cfg.smoother:
-            self._offline.append((a_s, stamps, chain, speed, emit, quality[sl]))
+            self._offline.append((a_s, stamps, chain, speed, emit, quality))
             return self._join([])
-        return self._advance(a_s, stamps, chain, speed, emit, quality[sl])
+        return self._advance(a_s, stamps, chain, speed, emit, quality)
 
     def _chainage(self, stamps: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Trapezoidal integral of speed over the stamps, continued across calls (m); time going
@@ -465,8 +497,20 @@ class InversionPipeline:
         keep = slice(None) if emit.all() else emit  # no bridged samples: views, no copies
         self._counters['emitted'] += int(emit.sum())
         quality = self._window_quality(first, quality, speed)
+        gap_std = np.sqrt(self._gap_variance(first, count))
         return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep], quality[keep],
-                      speed[keep])
+                      speed[keep], gap_std[keep])
+
+    def _gap_variance(self, first: int, count: int) -> np.ndarray:
+        """Variance (count,) m^2 of the fill errors at segment indices first.. (the gaps'
+        ``error_variance`` summed: independent gaps); forgets the gaps whose reach has passed."""
+        var = np.zeros(count)
+        for start, v in self._gap_var:
+            lo, hi = max(start, first), min(start + v.size, first + count)
+            if hi > lo:
+                var[lo - first:hi - first] += v[lo - start:hi - start]
+        self._gap_var = [(s0, v) for s0, v in self._gap_var if s0 + v.size > first + count]
+        return var
 
     def window_half_width(self, speed_mps: np.ndarray) -> np.ndarray:
         """Significant half-width (input samples) of the band window of outputs at these speeds:
@@ -503,8 +547,10 @@ class InversionPipeline:
         return out
 
     def _end_segment(self) -> Output:
-        """Pad the segment with a faded-out acceleration, emit what is pending, restart."""
-        out = []
+        """Emit the samples waiting for a gap's hold, pad the segment with a faded-out
+        acceleration, emit what is pending, restart."""
+        held = self._gaps.flush()
+        out = [] if held is None else [self._feed(*held)]
         d = self.delay_samples
         cfg = self.config
         pending = self._n + sum(x[0].size for x in self._offline)
@@ -534,4 +580,4 @@ class InversionPipeline:
     def _public(self, out: Output) -> Output:
         """u as (K,) for a single parameter set, (P, K) for a bank."""
         return Output(out.stamps_ns, out.chainage_m, out.u_m[0] if self._squeeze else out.u_m,
-                      out.quality, out.speed_mps)
+                      out.quality, out.speed_mps, out.gap_std_m)

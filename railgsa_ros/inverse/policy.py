@@ -615,4 +615,5 @@ class InputPolicy:
             return out
         u = np.array(out.u_m, dtype=float)
         u[..., invalid] = np.nan
-        return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps)
+        return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps,
+                      out.gap_std_m)

@@ -10,11 +10,11 @@ noise, sanitiser, quality) are a function of the input data and the inversion co
 they equal those of irregularity_node's policy and the band's stamps and qualities are the
 ``track/irregularity`` ones one to one (only the emission lags by the bank's longer FIR delay).
 
-Quality: an INVALID sample's band is NaN (lower, mean, upper); a DEGRADED sample's band is
-widened by the sensor terms' floor (``uncertainty.terms``: std at least max(sigma_u(v),
-noise_limit_m), sigma_u from the policy's noise floor): a DEGRADED sample (bridged input, band
-design held, noise near the limit) is taken to be at least as uncertain as the noisiest VALID
-one. Sensitivity windows use the samples that are not INVALID.
+Quality: an INVALID sample's band is NaN (lower, mean, upper); near a bridged gap the band
+holds the fill's own error (``Output.gap_std_m``, ``uncertainty.terms``); a sample DEGRADED for
+another reason (band design held, noise near the limit) is widened by the sensor terms' floor
+(std at least max(sigma_u(v), noise_limit_m), sigma_u from the policy's noise floor).
+Sensitivity windows use the samples that are not INVALID.
 """
 
 from __future__ import annotations
@@ -228,7 +228,7 @@ class UncertaintyStream:
     def update(self, out: Output) -> Update:
         """Band and closed windows of policy outputs ``out`` (u (P, K), NaN where INVALID)."""
         sensor = self.terms.std(out.stamps_ns, self.design.projector[0] @ out.u_m,
-                                out.speed_mps, out.quality)
+                                out.speed_mps, out.quality, out.gap_std_m)
         band = bank_band(self.design, self._quantiles, out, sensor)
         return Update(band, self.windows.push(out.stamps_ns, out.chainage_m, band.mean_m,
                                               out.u_m, out.graded != Quality.INVALID),

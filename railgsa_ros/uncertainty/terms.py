@@ -11,9 +11,12 @@ and taken Gaussian, so their variances add (metres of irregularity):
   over the stamps (carried across chunks: the same for any chunking);
 - scale factor: a gain error g ~ N(0, scale_std^2) of the accelerometer scales the profile:
   std scale_std |u|;
-- gap filling (quality DEGRADED: a bridged gap and its neighbourhood, the band design held, noise
-  near the limit): the sample is taken to be at least as uncertain as the noisiest VALID one,
-  std max(sigma_u(v), noise_limit_m), whichever is larger than the other terms together.
+- gap filling: the std of the error the model fill of bridged gaps leaves at the sample
+  (``Output.gap_std_m``: the fill's posterior covariance through the band FIR,
+  ``GapFiller.error_variance``), largest next to a gap and decaying with the distance from it;
+- DEGRADED for another reason (the band design held, noise near the limit): the sample is taken
+  to be at least as uncertain as the noisiest VALID one, std max(sigma_u(v), noise_limit_m),
+  whichever is larger than the other terms together.
 """
 
 from __future__ import annotations
@@ -43,10 +46,10 @@ class SensorTerms:
         self._last: tuple[int, float] | None = None
 
     def std(self, stamps_ns: np.ndarray, mean_m: np.ndarray, speed_mps: np.ndarray | None,
-            quality: np.ndarray | None) -> np.ndarray:
+            quality: np.ndarray | None, gap_std_m: np.ndarray | None = None) -> np.ndarray:
         """Std (K,) m of emitted samples: stamps (K,) ns, band mean (K,) m (NaN where
-        INVALID), speed (K,) m/s (None or NaN: no noise term) and quality (K,) (None: all
-        VALID)."""
+        INVALID), speed (K,) m/s (None or NaN: no noise term), quality (K,) (None: all
+        VALID) and the gap term (K,) m (None: none)."""
         mean = np.nan_to_num(np.asarray(mean_m, dtype=float))
         noise = np.zeros(mean.shape)
         if self._noise is not None and speed_mps is not None and mean.size:
@@ -56,8 +59,10 @@ class SensorTerms:
         var = noise ** 2 + (self._scale_std * mean) ** 2
         if self._delay_std_s > 0 and mean.size:
             var += (self._delay_std_s * self._rate(np.asarray(stamps_ns), mean)) ** 2
-        if quality is not None:
-            degraded = np.asarray(quality) == Quality.DEGRADED
+        gap = np.zeros(mean.shape) if gap_std_m is None else np.asarray(gap_std_m, float)
+        var += gap ** 2
+        if quality is not None:  # DEGRADED with no gap term: the floor
+            degraded = (np.asarray(quality) == Quality.DEGRADED) & (gap == 0)
             floor = np.maximum(noise, self._gap_floor_m)
             var = np.where(degraded, np.maximum(var, floor ** 2), var)
         if mean.size:
