@@ -9,13 +9,14 @@ time-domain pre-band ``pre_band(band)`` (a factor PRE_FACTOR beyond each edge, o
 PRE_ORDER: flat over the band however the speed moves within the window), resamples them
 linearly to x_j = j * step_m and filters the grid with the zero-phase band FIR |BP|^2 in
 wavenumber (``band.py`` designs it with 1 / step_m as the sample rate, so D1 at 0.25 m is
-exactly the scorer's filter). A grid point carries the stamp at which the wheel passed it
-(interpolated between the IMU stamps around it) and the worst quality of the inputs in its FIR
-window (INVALID: u = NaN); a chainage jump of more than GAP_STEPS steps between two outputs (a
-restart, a bridged dropout) is interpolated and DEGRADED. Only forward running makes a grid
-(samples whose chainage does not increase are counted as ``not_forward`` and skipped: at
-standstill there is nothing to resample). With ``band`` None the grid is the pre-band profile
-resampled, for users who filter on distance themselves.
+exactly the scorer's filter). A grid point carries the stamp of the IMU sample it came from,
+the one nearest to it in chainage (the rule of every topic: a stamp of a real sample; it is
+within half an IMU period of when the wheel passed the point), and the worst quality of the
+inputs in its FIR window (INVALID: u = NaN); a chainage jump of more than GAP_STEPS steps
+between two outputs (a restart, a bridged dropout) is interpolated and DEGRADED. Only forward
+running makes a grid (samples whose chainage does not increase are counted as ``not_forward``
+and skipped: at standstill there is nothing to resample). With ``band`` None the grid is the
+pre-band profile resampled, for users who filter on distance themselves.
 """
 
 from __future__ import annotations
@@ -149,8 +150,7 @@ class ChainageGrid:
                                            Quality.DEGRADED, Quality.VALID)).astype(np.uint8)
         values = np.interp(x, c, np.where(q == Quality.INVALID, 0.0, u))
         values[raw_q == Quality.INVALID] = 0.0  # nothing non-finite reaches the FIR
-        frac = (x - c[k - 1]) / (c[k] - c[k - 1])
-        stamps = t[k - 1] + np.rint(frac * (t[k] - t[k - 1]).astype(float)).astype(np.int64)
+        stamps = np.where(x - c[k - 1] <= c[k] - x, t[k - 1], t[k])  # the nearest sample
         self.counters['grid'] += x.size
         return self._filter(GridOutput(x, values, stamps, raw_q))
 
