@@ -5,7 +5,8 @@ TRUE sensor around a preset (``draw_sensor``: noise density x lognormal(0, 0.3),
 N(0, preset's), bias N(0, preset's) per axis, the preset's dropouts); the band is computed with the
 nominal vehicle, the law and the preset's datasheet noise (what a user knows). ``coverage`` is the
 fraction of the band's published samples (not INVALID, away from the ends) whose truth,
-band-passed on distance as the inversion does, lies inside the band of each nominal level.
+band-passed on distance as the inversion does, lies inside the band of each nominal level; the
+same split into the samples within NEAR_M of a dropout and the others (the gap term's test).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 NOISE_SPREAD = 0.3  # log-std of the true noise density around the datasheet value
 DX_M = 0.25  # distance grid of the band-passed truth, m
 MARGIN_M = 100.0  # left out at both ends (filter edges), m
+NEAR_M = 50.0  # a sample this close to a dropout is "near" it, m
 
 
 def draw_vehicle(nominal: VehicleParams, dists: Mapping[str, Distribution],
@@ -51,12 +53,16 @@ def draw_sensor(preset: str, rng: np.random.Generator) -> ImuSpec:
 @dataclass(frozen=True)
 class Coverage:
     """Per nominal level (probability): fraction of samples whose truth is inside the band, the
-    band's mean half-width (m), and the samples scored."""
+    band's mean half-width (m), and the samples scored; the fraction inside among the samples
+    within NEAR_M of a dropout (NaN without any) and among the others, and their counts."""
 
     levels: tuple[float, ...]
     inside: tuple[float, ...]
     half_width_m: tuple[float, ...]
     samples: int
+    near: tuple[float, ...] = ()
+    away: tuple[float, ...] = ()
+    near_samples: int = 0
 
 
 def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
@@ -67,7 +73,10 @@ def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
     x = np.arange(run.chainage_m[0], run.chainage_m[-1], DX_M)
     truth_x = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), DX_M,
                             config.inversion.band, config.inversion.band_order)
-    inside, width, count = [], [], 0
+    period_ns = 1e9 / run.rate_hz
+    ends = np.flatnonzero(np.diff(run.stamps_ns) > 1.5 * period_ns)  # last sample before a gap
+    gaps_m = run.chainage_m[ends]
+    inside, width, count, near_in, away_in = [], [], 0, [], []
     for level in levels:
         cfg = config.with_(lower_quantile=(1 - level) / 2, upper_quantile=(1 + level) / 2)
         band = offline_bands(run.stamps_ns, run.accel, (run.stamps_ns, run.speed_mps),
@@ -79,7 +88,18 @@ def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
         keep = ((chain > chain[0] + MARGIN_M) & (chain < chain[-1] - MARGIN_M)
                 & np.isfinite(band.mean_m) & (band.quality != Quality.INVALID))
         lo, hi = band.lower_m[keep], band.upper_m[keep]
-        inside.append(float(np.mean((truth[keep] >= lo) & (truth[keep] <= hi))))
+        hit = (truth[keep] >= lo) & (truth[keep] <= hi)
+        near = np.zeros(hit.size, bool)
+        if gaps_m.size:
+            j = np.clip(np.searchsorted(gaps_m, chain[keep]), 1, max(gaps_m.size - 1, 1))
+            near = np.minimum(np.abs(chain[keep] - gaps_m[j - 1]),
+                              np.abs(chain[keep] - gaps_m[np.minimum(j, gaps_m.size - 1)])
+                              ) <= NEAR_M
+        inside.append(float(np.mean(hit)))
+        near_in.append(float(np.mean(hit[near])) if near.any() else float('nan'))
+        away_in.append(float(np.mean(hit[~near])) if (~near).any() else float('nan'))
         width.append(float(np.mean(hi - lo) / 2))
         count = int(keep.sum())
-    return Coverage(tuple(levels), tuple(inside), tuple(width), count)
+        near_count = int(near.sum())
+    return Coverage(tuple(levels), tuple(inside), tuple(width), count, tuple(near_in),
+                    tuple(away_in), near_count)
