@@ -140,3 +140,27 @@ def test_distance_band_beats_the_time_domain_band_at_variable_speed():
     # whole FIR had to clear the restart (which left runs of 15 s without a valid output)
     assert distance <= 0.08e-3
     assert time_domain >= 1.5 * distance  # measured 1.74 (2.0 with the whole FIR)
+
+
+def test_grid_stream_does_not_depend_on_chunking():
+    """GridStream (the policy with the pre-band and the grid, what the node publishes): IMU
+    and odometry in random chunks give the grid points of one push, bit for bit."""
+    from railgsa_ros.inverse.grid import GridStream
+
+    run = run_scenario('german-low', 20.0, 30.0, 200.0, 'ideal', seed=2)
+    config = InversionConfig(rate_hz=200.0, min_design_speed_mps=20.0)
+    accel, odom = run.accel, (run.stamps_ns[::10], run.speed_mps[::10])
+
+    def grid(cuts):
+        stream = GridStream(config)
+        outs = [stream.odometry(*odom)]
+        for lo, hi in itertools.pairwise([0, *cuts, run.stamps_ns.size]):
+            outs.append(stream.imu(run.stamps_ns[lo:hi], accel[lo:hi]))
+        return GridOutput.concat([*outs, stream.flush()])
+
+    whole = grid([])
+    parts = grid(np.sort(np.random.default_rng(1).choice(run.stamps_ns.size, 30, replace=False)))
+    assert len(whole) > 1000 and (whole.quality != Quality.INVALID).any()
+    for name in ('chainage_m', 'u_m', 'stamps_ns', 'quality'):
+        assert np.array_equal(getattr(whole, name), getattr(parts, name), equal_nan=True), name
+    assert np.all(np.isin(whole.stamps_ns, run.stamps_ns))  # real samples' stamps

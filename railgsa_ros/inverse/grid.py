@@ -37,8 +37,10 @@ from railgsa_ros.inverse.band import (
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.pipeline import Output
+from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.samples import join
+from railgsa_ros.vehicle import VehicleParams
 
 PRE_FACTOR = 2.0  # the time-domain pre-band reaches this factor beyond each band edge
 PRE_ORDER = 4  # its Butterworth order: |BP|^2 >= 0.998 at the band edges
@@ -61,7 +63,7 @@ def grid_config(config: InversionConfig) -> InversionConfig:
 @dataclass(frozen=True)
 class GridOutput:
     """Profile on the grid: chainage_m (K,) multiples of the step, u_m (K,) in m (NaN where
-    INVALID), stamps_ns (K,) int64 when the wheel passed, quality (K,) uint8."""
+    INVALID), stamps_ns (K,) int64 of the IMU sample nearest in chainage, quality (K,) uint8."""
 
     chainage_m: np.ndarray
     u_m: np.ndarray
@@ -135,7 +137,9 @@ class ChainageGrid:
             raise ConfigError('grid: expected one parameter set (u of shape (K,))')
         q_in = out.quality if out.quality is not None else np.zeros(len(out), np.uint8)
         c, u, t, q = self._forward(out.chainage_m, out.u_m, out.stamps_ns, q_in)
-        if c.size < 2:
+        if c.size < 2:  # nothing to interpolate yet: a first sample is kept for the next push
+            if c.size:
+                self._last = (float(c[-1]), float(u[-1]), int(t[-1]), int(q[-1]))
             return GridOutput.concat([])
         j0 = self._next if self._next is not None else int(np.ceil(c[0] / self.step_m))
         j1 = int(np.floor(c[-1] / self.step_m))
@@ -205,3 +209,30 @@ class ChainageGrid:
         drop = self._emitted - d - self._q0  # raw quality no window needs any more
         self._q, self._q0 = self._q[drop:], self._q0 + drop
         return emit
+
+
+class GridStream:
+    """IMU and odometry in, the profile on the chainage grid out: an InputPolicy with the
+    pre-band (``grid_config(config)``) and ``ChainageGrid.for_config(config, step_m)`` behind
+    it, the pair ``railgsa invert --grid`` runs (through offline.Driver), as one object for a
+    node. Methods as InputPolicy's; each returns the grid points that are finished."""
+
+    def __init__(self, config: InversionConfig, vehicle: VehicleParams | np.ndarray | None = None,
+                 options: PolicyOptions | None = None, step_m: float = DEFAULT_STEP_M,
+                 noise_variance: float | None = None) -> None:
+        self.grid = ChainageGrid.for_config(config, step_m)
+        self.policy = InputPolicy(grid_config(config), vehicle, options=options,
+                                  noise_variance=noise_variance)
+
+    def odometry(self, stamps_ns: np.ndarray, speed_mps: np.ndarray) -> GridOutput:
+        """Odometry samples (the IMU samples they release reach the grid)."""
+        return self.grid.push(self.policy.odometry(stamps_ns, speed_mps))
+
+    def imu(self, stamps_ns: np.ndarray, accel: np.ndarray, frame_ids: np.ndarray | None = None,
+            covariance: np.ndarray | None = None) -> GridOutput:
+        """IMU samples: stamps (T,) ns, accel (T, 3) m/s^2, frame ids, REP 145 covariance."""
+        return self.grid.push(self.policy.imu(stamps_ns, accel, frame_ids, covariance))
+
+    def flush(self) -> GridOutput:
+        """End of the stream: the policy's pending outputs, then the grid's last points."""
+        return GridOutput.concat([self.grid.push(self.policy.flush()), self.grid.flush()])
