@@ -314,10 +314,12 @@ def test_cli_replay_waits_for_a_subscriber_started_after_it(tmp_path: Path, ros_
     assert sink.raws('/imu/data') == [raw for _, _, raw in written]
 
 
-def test_cli_replay_no_wait_plays_at_once(tmp_path: Path, ros_domain: int) -> None:
-    write_rosbags(tmp_path / 'bag', 50)
-    proc = subprocess.run([sys.executable, '-m', 'railgsa_ros.cli.main', 'replay',
-                           str(tmp_path / 'bag'), '--no-wait'], capture_output=True, text=True,
-                          timeout=60)
-    assert proc.returncode == 0 and 'waiting' not in proc.stderr
-    assert 'published 50 messages' in proc.stderr
+def test_cli_replay_waits_10_s_by_default_and_no_wait_is_0() -> None:
+    from railgsa_ros.cli.main import build_parser
+
+    def wait(*args: str) -> float:
+        return build_parser().parse_args(['replay', 'bag', *args]).wait_timeout
+    assert (wait(), wait('--no-wait'), wait('--wait-timeout', '3'),
+            wait('--wait-for-subscribers', '30')) == (10.0, 0.0, 3.0, 30.0)
+    with pytest.raises(SystemExit):
+        wait('--no-wait', '--wait-timeout', '3')
