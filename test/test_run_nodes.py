@@ -254,7 +254,8 @@ def test_launch_file_starts_both_nodes_from_one_params_file(monkeypatch: Any) ->
     assert set(nodes) <= scripts  # ros2 run / launch find them in lib/railgsa_ros
 
 
-def test_demo_domain_is_ros_domain_id_when_set_else_a_reserved_one(monkeypatch: Any) -> None:
+def test_demo_domain_is_ros_domain_id_when_set_else_a_reserved_one(monkeypatch: Any,
+                                                                   capsys: Any) -> None:
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.system import session_domain
 
@@ -268,3 +269,5 @@ def test_demo_domain_is_ros_domain_id_when_set_else_a_reserved_one(monkeypatch: 
     monkeypatch.setenv('ROS_DOMAIN_ID', 'train')
     with pytest.raises(ConfigError, match="ROS_DOMAIN_ID: 'train' is not a domain id"):
         session_domain().__enter__()
+    assert main(['run']) == 2  # railgsa run: one line before any node starts
+    assert capsys.readouterr().err == "error: ROS_DOMAIN_ID: 'train' is not a domain id (0-232)\n"

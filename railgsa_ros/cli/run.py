@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def namespace_of(text: str) -> str:
     """``train1`` or ``/a/b`` as an absolute namespace (``/`` for none); ConfigError if it is
     not a ROS namespace."""
-    parts = [p for p in text.strip().strip('/').split('/')] if text.strip('/ ') else []
+    parts = text.strip().strip('/').split('/') if text.strip('/ ') else []
     bad = [p for p in parts if not NAME.fullmatch(p)]
     if bad:
         from railgsa_ros.errors import ConfigError
@@ -135,8 +135,9 @@ def forward_signals(stop: threading.Event, received: list[int]) -> Mapping[int, 
 
 def run(args: argparse.Namespace) -> int:
     """Check, start, supervise, stop; 0 after a forwarded signal with every node exiting 0."""
-    from railgsa_ros.system import System
+    from railgsa_ros.system import System, env_domain
 
+    env_domain()  # a ROS_DOMAIN_ID that is no domain id: one line now, not two failed nodes
     namespace = namespace_of(args.namespace)
     if args.params:
         node_values(args.params, namespace)
