@@ -617,3 +617,48 @@ def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
         {'valid': got[0], 'degraded': got[1], 'invalid': got[2]}
     np.testing.assert_array_equal(r.quality[:len(ref)], ref.quality)
 
+
+
+def test_grid_topic_equals_invert_grid(rig: Callable, tmp_path: Path) -> None:
+    """publish_grid: track/irregularity_grid through the node (ended by the idle flush) equals
+    ``railgsa invert --grid 0.25`` on a bag of the same samples (15 s at 40 m/s: the pre-band's
+    window leaves VALID points), point for point (live = offline: the same GridStream
+    objects)."""
+    from geometry_msgs.msg import PointStamped
+
+    from railgsa_ros.bag.run import write_run
+    from railgsa_ros.cli.main import main
+    from railgsa_ros.nodes.qos import output_qos
+    from railgsa_ros.scenario import run_scenario
+
+    run = run_scenario('german-low', speed_mps=40.0, duration_s=15.0, rate_hz=1000.0,
+                       sensor='ideal', seed=1)
+    variance = 1e-6
+    bag = write_run(tmp_path / 'bag', run, accel_variance=variance, offset_ns=T0_NS)
+    params = tmp_path / 'params.yaml'
+    params.write_text(yaml.safe_dump({'irregularity_node': {'ros__parameters': {
+        'min_design_speed_mps': PARAMS['min_design_speed_mps']}}}))
+    csv = tmp_path / 'grid.csv'
+    assert main(['invert', str(bag), '--csv', str(csv), '--grid', '0.25', '--speed',
+                 str(PARAMS['speed_mps']), '--params', str(params)]) == 0
+    rows = [line.split(',') for line in csv.read_text().splitlines()[1:]]
+    want_t = np.array([int(t.split('.')[0]) * 1_000_000_000 + int(t.split('.')[1])
+                       for t, *_ in rows], np.int64)
+    want = np.array([[float(r[1]), float(r[3]), float(r[2])] for r in rows])  # x, y, z
+
+    r = rig(publish_grid=True, idle_flush_s=0.5)
+    got: list[tuple[int, float, float, float]] = []
+    r.test.create_subscription(PointStamped, 'track/irregularity_grid', lambda m: got.append((
+        m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, m.point.x, m.point.y,
+        m.point.z)), output_qos(20_000))
+    assert r.wait_for(lambda: r.node.count_subscribers('track/irregularity_grid') > 0, 15.0)
+    time.sleep(0.2)
+    r.publish(imu_msgs(run.stamps_ns + T0_NS, run.accel[:, 2], variance=variance))
+    assert r.wait_for(lambda: len(got) >= len(rows), 30.0), (len(got), len(rows))
+    time.sleep(0.2)
+    stamps = np.array([g[0] for g in got], np.int64)
+    values = np.array([g[1:] for g in got])
+    assert len(rows) > 500 and (want[:, 1] == 0).any()  # VALID points exist
+    np.testing.assert_array_equal(stamps, want_t)
+    np.testing.assert_allclose(values[:, :2], want[:, :2], rtol=0, atol=5e-5)  # %.4f chainage
+    np.testing.assert_allclose(values[:, 2], want[:, 2], rtol=1e-8, atol=0)  # %.9e u, NaN too

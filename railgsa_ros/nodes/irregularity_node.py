@@ -6,7 +6,11 @@ IMU sample's stamp, frame ``track``, x = chainage m, z = irregularity m, +z up) 
 ``/diagnostics``. A thin adapter over :class:`railgsa_ros.inverse.policy.InputPolicy` (every
 input decision: axis, frame policy, speed with its timeout, noise, quality; the same object as
 ``railgsa invert``): ``point.y`` = the sample's quality code (0 VALID, 1 DEGRADED, 2 INVALID),
-``point.z`` = NaN when INVALID. See docs/nodes.md for topics, parameters, QoS and diagnostics.
+``point.z`` = NaN when INVALID. With ``publish_grid`` also ``track/irregularity_grid``: the
+profile on chainage multiples of ``grid_step_m`` band-passed on distance
+(:class:`railgsa_ros.inverse.grid.GridStream`, what ``railgsa invert --grid`` computes; x =
+chainage, y = quality, z = u, stamp = the IMU sample nearest in chainage). See docs/nodes.md
+for topics, parameters, QoS and diagnostics.
 
 Nothing is held back: ``idle_flush_s`` without input, deactivate and shutdown flush the samples
 pending in the band filter; every output goes through an
@@ -43,12 +47,15 @@ from rclpy.parameter import Parameter
 from railgsa_ros.bag.messages import POINT_STAMPED
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.grid import DEFAULT_STEP_M, GridOutput, GridStream
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, LatencyWindow, Report, quality_values
 from railgsa_ros.nodes.imu_conversion import ImuBatch
 from railgsa_ros.nodes.lifecycle import run
+from railgsa_ros.nodes.pacing import OutputPacer
 from railgsa_ros.nodes.params import ParamSpec, accept_integers, declare, merged
+from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
     NODE_SPECS,
@@ -56,7 +63,7 @@ from railgsa_ros.nodes.specs import (
     inversion_config,
     vehicle_values,
 )
-from railgsa_ros.nodes.stream_node import StreamNode
+from railgsa_ros.nodes.stream_node import OUTPUT_FRAME, StreamNode
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
 NODE_NAME = 'irregularity_node'
@@ -65,7 +72,14 @@ NODE_NAME = 'irregularity_node'
 PERIOD = ParamSpec('process_period_s', 0.005, 'IMU samples are handed to the policy in one '
                    'batch at most this often (less CPU per sample, up to this much more '
                    'latency); 0: as they arrive, s', (0.0, 1.0), read_only=True)
-SPECS = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, PERIOD)
+#: the profile on the chainage grid as a second topic: off by default (a second policy with the
+#: wider pre-band, about the cost of the first)
+GRID = (ParamSpec('publish_grid', False, 'also publish track/irregularity_grid: the profile on '
+                  'chainage multiples of grid_step_m, band-passed on distance',
+                  read_only=True),
+        ParamSpec('grid_step_m', DEFAULT_STEP_M, 'chainage step of track/irregularity_grid, m',
+                  (0.01, 10.0), read_only=True))
+SPECS = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, PERIOD, *GRID)
 #: parameters whose change rebuilds the policy (old filters flushed, chainage continued)
 MODEL_PARAMS = frozenset((*(s.name for s in INVERSION_SPECS + VEHICLE_SPECS),
                           *(f.name for f in fields(PolicyOptions))))
@@ -89,6 +103,12 @@ def build_model(values: Mapping[str, Any], noise_variance: float | None = None) 
     return InputPolicy(config, vehicle, options=options, noise_variance=noise_variance)
 
 
+def build_grid(values: Mapping[str, Any]) -> GridStream:
+    """The grid stream for parameter ``values`` (the model's config, vehicle and options)."""
+    config, vehicle, options = model_inputs(values)
+    return GridStream(config, vehicle, options, values['grid_step_m'])
+
+
 class IrregularityNode(StreamNode):
     """The managed node; with autostart (default), ConfigError from the constructor when the
     parameters are invalid."""
@@ -103,6 +123,8 @@ class IrregularityNode(StreamNode):
         self._next_model: Model | None = None
         self._latency = LatencyWindow()
         self._speed_mps = float('nan')  # speed of the newest output, m/s
+        self.grid: GridStream | None = None  # with publish_grid
+        self._grid_pacer: OutputPacer | None = None
         self.add_pre_set_parameters_callback(accept_integers(SPECS))
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -116,17 +138,37 @@ class IrregularityNode(StreamNode):
         self.policy = build_model(values)
         self._values = values
         self.create_output(PointStamped, 'track/irregularity', POINT_STAMPED)
+        if values['publish_grid']:
+            self.grid = build_grid(values)
+            depth = values['output_qos_depth']
+            self._pubs.append(self.create_lifecycle_publisher(
+                PointStamped, 'track/irregularity_grid', output_qos(depth)))
+            self._grid_pacer = OutputPacer(self, self._pubs[-1], POINT_STAMPED, OUTPUT_FRAME,
+                                           depth, values['flush_rate_hz'], self.lock)
 
     def activate(self) -> None:
         """The intake and the diagnostics reporter."""
         super().activate()
         self.add_task('inversion', self._report_inversion)
 
+    def deactivate(self) -> None:
+        """StreamNode.deactivate (its flush also ends the grid), then the grid's outputs are
+        published and acknowledged."""
+        super().deactivate()
+        if self._grid_pacer is not None:
+            self._grid_pacer.finish()
+
     def release_core(self) -> None:
-        """Drop the policy (its counters are kept) and the pending parameter changes."""
+        """Drop the policy (its counters are kept), the grid and the pending parameter
+        changes."""
         if self.policy is not None:
             self._retired.update(self.policy.counters)
             self.policy = None
+        if self._grid_pacer is not None:
+            self._counts['grid_published'] += self._grid_pacer.published
+            self._grid_pacer.destroy()
+            self._grid_pacer = None
+        self.grid = None
         self._values = self._candidate = self._next_model = None
 
     # ------------------------------------------------------------------ configuration
@@ -186,14 +228,33 @@ class IrregularityNode(StreamNode):
         if batch is not None:
             outs.append(self._guarded(lambda: self.policy.imu(
                 batch.stamps_ns, batch.accel, batch.frame_ids, batch.covariance)))
+            self._grid_step(lambda g: g.imu(batch.stamps_ns, batch.accel, batch.frame_ids,
+                                            batch.covariance))
         outs = [o for o in outs if o is not None and len(o)]
         return Output.concat(outs) if outs else None
 
     def core_odometry(self, stamps_ns: np.ndarray, speeds_mps: np.ndarray) -> Output | None:
+        self._grid_step(lambda g: g.odometry(stamps_ns, speeds_mps))
         return self._guarded(lambda: self.policy.odometry(stamps_ns, speeds_mps))
 
     def core_flush(self) -> Output | None:
+        self._grid_step(GridStream.flush, live=False)
         return self._guarded(self.policy.flush)
+
+    def _grid_step(self, step: Any, live: bool = True) -> None:
+        """With publish_grid: ``step(grid)`` and its points on track/irregularity_grid (live:
+        at the input's pace, else paced as a flush); on an exception the grid restarts."""
+        if self.grid is None:
+            return
+        out: GridOutput | None = self.guarded(lambda: step(self.grid), 'grid', self._new_grid)
+        if out is not None and len(out):
+            self._grid_pacer.put(out.stamps_ns, np.column_stack([out.chainage_m, out.quality,
+                                                                 out.u_m]),
+                                 len(out) if live else 0)
+
+    def _new_grid(self) -> None:
+        """A fresh grid stream for the current values (after an internal error)."""
+        self.grid = build_grid(self._values)
 
     def process(self, imu: Any, odom: Any = ()) -> Output | None:
         """StreamNode.process, its time recorded for /diagnostics (latency_*)."""
@@ -217,6 +278,7 @@ class IrregularityNode(StreamNode):
             return None
         config, vehicle, options = self._next_model
         self._next_model = None
+        self._grid_step(lambda g: g.rebuild(config, vehicle, options), live=False)
         return self._guarded(lambda: self.policy.rebuild(config, vehicle, options=options))
 
     def emit(self, out: Output | None, live: int) -> Output | None:
