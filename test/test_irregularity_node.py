@@ -621,8 +621,8 @@ def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
 
 def test_grid_topic_equals_invert_grid(rig: Callable, tmp_path: Path) -> None:
     """publish_grid: track/irregularity_grid through the node (ended by the idle flush) equals
-    ``railgsa invert --grid 0.25`` on a bag of the same samples (15 s at 40 m/s: the pre-band's
-    window leaves VALID points), point for point (live = offline: the same GridStream
+    ``railgsa invert --grid 0.25`` on a bag of the same samples (12 s at 40 m/s, 500 Hz: the
+    pre-band's window leaves VALID points), point for point (live = offline: the same GridStream
     objects)."""
     from geometry_msgs.msg import PointStamped
 
@@ -631,13 +631,13 @@ def test_grid_topic_equals_invert_grid(rig: Callable, tmp_path: Path) -> None:
     from railgsa_ros.nodes.qos import output_qos
     from railgsa_ros.scenario import run_scenario
 
-    run = run_scenario('german-low', speed_mps=40.0, duration_s=15.0, rate_hz=1000.0,
+    run = run_scenario('german-low', speed_mps=40.0, duration_s=12.0, rate_hz=500.0,
                        sensor='ideal', seed=1)
     variance = 1e-6
     bag = write_run(tmp_path / 'bag', run, accel_variance=variance, offset_ns=T0_NS)
     params = tmp_path / 'params.yaml'
     params.write_text(yaml.safe_dump({'irregularity_node': {'ros__parameters': {
-        'min_design_speed_mps': PARAMS['min_design_speed_mps']}}}))
+        'min_design_speed_mps': PARAMS['min_design_speed_mps'], 'rate_hz': 500.0}}}))
     csv = tmp_path / 'grid.csv'
     assert main(['invert', str(bag), '--csv', str(csv), '--grid', '0.25', '--speed',
                  str(PARAMS['speed_mps']), '--params', str(params)]) == 0
@@ -646,7 +646,7 @@ def test_grid_topic_equals_invert_grid(rig: Callable, tmp_path: Path) -> None:
                        for t, *_ in rows], np.int64)
     want = np.array([[float(r[1]), float(r[3]), float(r[2])] for r in rows])  # x, y, z
 
-    r = rig(publish_grid=True, idle_flush_s=0.5)
+    r = rig(publish_grid=True, idle_flush_s=0.5, rate_hz=500.0)
     got: list[tuple[int, float, float, float]] = []
     r.test.create_subscription(PointStamped, 'track/irregularity_grid', lambda m: got.append((
         m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, m.point.x, m.point.y,
