@@ -35,9 +35,10 @@ sections and defect positions are in ground metres.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.polynomial import polynomial
@@ -77,6 +78,20 @@ class Reference:
         """km-post (km) of chainages (m)."""
         sign = 1.0 if self.direction == 'increasing' else -1.0
         return self.km_origin + sign * np.asarray(chainage_m, dtype=float) / 1e3
+
+    def values(self, chainage_m: float) -> dict[str, object]:
+        """line, track, direction, km_origin and a chainage (m) with its km-post (km): what
+        the live nodes report on /diagnostics for their newest output."""
+        return {'line': self.line, 'track': self.track, 'direction': self.direction,
+                'km_origin': self.km_origin, 'chainage_m': float(chainage_m),
+                'km': float(self.km(chainage_m))}
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> Reference:
+        """The reference of the location keys in ``values`` (node parameters or a params
+        file's node section; missing keys take the defaults)."""
+        return cls(**{k: values[k] for k in ('line', 'track', 'direction', 'km_origin')
+                      if k in values})
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from railgsa_ros.location import Reference
 from railgsa_ros.nodes.qos import DIAGNOSTICS_QOS
 
 OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
@@ -171,3 +172,14 @@ def checks_report(policy: Any) -> Report:
     status = policy.status
     values = {f.key: f'{LEVEL_NAMES[f.level]}: {f.message}' for f in policy.findings}
     return Report(LEVELS[status.level], status.message, values)
+
+
+def location_report(values: Mapping[str, Any], stamp_ns: int, chainage_m: float) -> Report:
+    """The 'location' task: the location parameters (``location.Reference``) and the km-post of
+    the newest output (its IMU stamp and chainage); STALE before the first (-1, NaN)."""
+    reference = Reference.from_mapping(values)
+    shown = {**reference.values(chainage_m), 'stamp_ns': stamp_ns}
+    if stamp_ns < 0:
+        return Report(STALE, 'no output yet', shown)
+    return Report(OK, f'line {reference.line} track {reference.track}, km {shown["km"]:.3f}',
+                  shown)

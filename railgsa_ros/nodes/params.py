@@ -2,8 +2,9 @@
 
 rclpy itself enforces the type, the numeric range and read_only; ``choices`` (string enums) are
 checked here. ``declare`` turns any rejection at start-up into a ConfigError naming the parameter.
-An integer given for a float parameter (``-p speed_mps:=30``) is taken as that float, at start-up
-(``declare``) and later (``accept_integers``, a pre-set callback); other wrong types are refused.
+An integer given for a float parameter (``-p speed_mps:=30``) is taken as that float, and one
+given for a string parameter (an id: ``-p track:=2``) as its text, at start-up (``declare``) and
+later (``accept_integers``, a pre-set callback); other wrong types are refused.
 ``check_params_files`` reads every ``--params-file`` of the command line before rclpy does: a
 missing or malformed file, an unknown key or no section for the node is a ConfigError naming the
 file (rcl alone ignores unknown keys and other nodes' sections).
@@ -60,11 +61,16 @@ class ParamSpec:
 
 
 def as_float(param: Parameter, specs: Mapping[str, ParamSpec]) -> Parameter:
-    """``param`` as a DOUBLE when it is an INTEGER for a float spec, else unchanged."""
+    """``param`` as a DOUBLE when it is an INTEGER for a float spec, as a STRING when it is an
+    INTEGER for a string spec (an id such as ``track: 2``, as the offline params files read it),
+    else unchanged."""
     spec = specs.get(param.name)
-    if spec is not None and isinstance(spec.default, float) and \
-            param.type_ == Parameter.Type.INTEGER:
+    if spec is None or param.type_ != Parameter.Type.INTEGER:
+        return param
+    if isinstance(spec.default, float):
         return Parameter(param.name, Parameter.Type.DOUBLE, float(param.value))
+    if isinstance(spec.default, str):
+        return Parameter(param.name, Parameter.Type.STRING, str(param.value))
     return param
 
 

@@ -5,7 +5,8 @@
   bounds, units and descriptions of ``vehicle`` (PARAM_BOUNDS: the same in vehicle files and
   the CLI).
 - NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, input QoS,
-  stuck sensor and backward time limits, idle flush and output pacing).
+  stuck sensor and backward time limits, idle flush and output pacing) and LOCATION_SPECS
+  (line, track, direction, km_origin).
 - UNCERTAINTY_SPECS: uncertainty_node's own (UncertaintyConfig fields and its extras).
 - ALL_PARAMETER_NAMES: every name either node declares (for params files shared with ``/**``).
 """
@@ -17,6 +18,7 @@ from dataclasses import fields
 from typing import Any
 
 from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.location import DIRECTIONS
 from railgsa_ros.nodes.params import ParamSpec
 from railgsa_ros.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
 from railgsa_ros.uncertainty.config import UncertaintyConfig
@@ -34,6 +36,16 @@ INVERSION_SPECS = tuple(ParamSpec(f.name, f.default, f.metadata['doc'], f.metada
 VEHICLE_SPECS = tuple(ParamSpec(n, getattr(VehicleParams(), n),
                                 f'{PARAM_DOCS[n]}, {PARAM_UNITS[n]}', PARAM_BOUNDS[n])
                       for n in PARAM_NAMES)
+#: where the run is: the offline params-file keys (railgsa invert/review read the same names from
+#: a node section) with the meaning of ``location.Reference``; reported on /diagnostics
+LOCATION_SPECS = (
+    ParamSpec('line', '', 'line id of the run', read_only=True),
+    ParamSpec('track', '', 'track id of the run', read_only=True),
+    ParamSpec('direction', DIRECTIONS[0], 'the km-posts increase or decrease along the run',
+              choices=DIRECTIONS, read_only=True),
+    ParamSpec('km_origin', 0.0, 'km-post of chainage 0 (the first IMU sample of the node); '
+              'km = km_origin +- chainage / 1000, km', (-1e5, 1e5), read_only=True),
+)
 NODE_SPECS = (
     ParamSpec('vehicle_file', '', 'YAML file with a "vehicle:" section; when set, its values '
               'replace m_s, m_us, k_s, k_us, c at start-up', read_only=True),
@@ -67,6 +79,7 @@ NODE_SPECS = (
     ParamSpec('flush_rate_hz', 2000.0, 'flushed outputs are published at this rate on top of '
               'the live ones, in slices of at most output_qos_depth / 8 per 10 ms, messages/s',
               (10.0, 1e6), read_only=True),
+    *LOCATION_SPECS,
 )
 UNCERTAINTY_SPECS = (
     *(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'], f.metadata['choices'])
