@@ -57,7 +57,7 @@ def test_idle_node_is_stale_then_ok_then_warns_when_input_stops(
     assert wait_for(lambda: reports, 10.0)
     first = reports[0]
     assert {name: s.level for name, s in first.items()} == {
-        'imu input': STALE, 'inversion': STALE, 'input checks': STALE}
+        'imu input': STALE, 'inversion': STALE, 'input checks': STALE, 'location': STALE}
     assert first['imu input'].message == 'no IMU input yet'
     assert {s.hardware_id for s in first.values()} == {''}
     started = {kv.key: kv.value for kv in first['inversion'].values}['started_unix_s']

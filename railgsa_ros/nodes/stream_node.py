@@ -32,6 +32,7 @@ from railgsa_ros.nodes.diagnostics import (
     HardwareId,
     Report,
     checks_report,
+    location_report,
 )
 from railgsa_ros.nodes.imu_conversion import ImuBatch
 from railgsa_ros.nodes.imu_input import ImuIntake
@@ -63,6 +64,7 @@ class StreamNode(ManagedNode):
         self._pacer: OutputPacer | None = None
         self._last_input = time.monotonic()  # steady time of the last IMU batch, s
         self._unflushed = False  # samples given to the core since the last flush
+        self._newest = (-1, float('nan'))  # IMU stamp (ns) and chainage (m) of the newest output
 
     # ------------------------------------------------------------------ for subclasses
     @property
@@ -112,6 +114,7 @@ class StreamNode(ManagedNode):
         self._diagnostics = DiagnosticsPublisher(self, self._hardware)
         self.add_task('imu input', self._report_input)
         self.add_task('input checks', lambda _: checks_report(self.input_policy))
+        self.add_task('location', lambda _: location_report(self._values, *self._newest))
 
     def add_task(self, name: str, report: Callable[[float], Report]) -> None:
         """A diagnostics task run under the node lock."""
@@ -192,14 +195,21 @@ class StreamNode(ManagedNode):
             return None
         self._unflushed = False
         self._counts[reason] += 1
-        return self.emit(self.core_flush(), 0)
+        return self._noted(self.emit(self.core_flush(), 0))
 
     def _step(self, step: Callable[[], Any], added: int = 0) -> Any:
         """Run a core step and emit its result; ``added`` input samples go in with it (each
         one that leaves the policy's hold adds a live output; the rest are paced)."""
         held = self.input_policy.held + added
         result = step()
-        return self.emit(result, max(0, held - self.input_policy.held))
+        return self._noted(self.emit(result, max(0, held - self.input_policy.held)))
+
+    def _noted(self, out: Any) -> Any:
+        """``out`` (emit's Output or Band: stamps_ns, chainage_m), its newest sample kept for
+        the 'location' task."""
+        if out is not None and len(out):
+            self._newest = (int(out.stamps_ns[-1]), float(out.chainage_m[-1]))
+        return out
 
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
