@@ -10,8 +10,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from railgsa_ros.cli.review import add_location_options
+
+if TYPE_CHECKING:
+    from railgsa_ros.fleet.ingest import Outcome
+    from railgsa_ros.fleet.passes import PassOptions
 
 EXIT_SOME_FAILED = 1
 DEFAULT_LINE, DEFAULT_TRACK = 'line', '1'  # when neither the options nor a params file say
@@ -74,7 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     qry.set_defaults(func=run_query, format='json')
 
 
-def pass_options(args: argparse.Namespace) -> object:
+def pass_options(args: argparse.Namespace) -> PassOptions:
     """PassOptions from the command line (ConfigError naming the option or file): the inversion
     configuration and vehicle exactly as ``railgsa review --no-uncertainty`` builds them."""
     from railgsa_ros.cli.review import build_options
@@ -113,7 +118,7 @@ def review_namespace(args: argparse.Namespace) -> argparse.Namespace:
     return namespace
 
 
-def said(outcome: object) -> str:
+def said(outcome: Outcome) -> str:
     """'BAG: message', the bag named once (error messages already start with it)."""
     if outcome.message.startswith(outcome.bag):
         return outcome.message
@@ -134,7 +139,7 @@ def run_ingest(args: argparse.Namespace) -> int:
         start = None if args.geometry_start_km is None else 1000.0 * args.geometry_start_km
         geometry = load_geometry(args.line_geometry, start, options.line)
 
-    def show(o: object) -> None:
+    def show(o: Outcome) -> None:
         label = f'pass {o.pass_id}' if o.pass_id is not None else '-'
         print(f'{o.status:<9} {label:<8} {said(o)}', flush=True)
 
@@ -147,7 +152,7 @@ def run_ingest(args: argparse.Namespace) -> int:
         n_pass, n_def, n_new = con.execute(
             "SELECT (SELECT count(*) FROM passes WHERE line = $l AND track = $t AND status = "
             "'ok'), count(*), count(*) FILTER (WHERE new) FROM defects WHERE line = $l AND "
-            "track = $t", {'l': options.line, 't': options.track}).fetchone()
+            "track = $t", {'l': options.line, 't': options.track}).fetchone() or (0, 0, 0)
     finally:
         con.close()
     bad = [o for o in outcomes if o.status in ('failed', 'unaligned')]

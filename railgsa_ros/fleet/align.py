@@ -48,11 +48,11 @@ class Alignment:
     correlation: float = float('nan')
     windows: int = 0
 
-    def position(self, s_m: np.ndarray) -> np.ndarray:
+    def position(self, s_m: np.ndarray | float) -> np.ndarray:
         """Line chainage (m) of odometry chainages s (m)."""
         return self.offset_m + self.scale * np.asarray(s_m, dtype=float)
 
-    def position_sd(self, s_m: np.ndarray) -> np.ndarray:
+    def position_sd(self, s_m: np.ndarray | float) -> np.ndarray:
         """Standard deviation (m) of ``position(s)`` from the alignment covariance."""
         s = np.asarray(s_m, dtype=float)
         c = self.cov
@@ -213,8 +213,10 @@ def xcorr_align(ref: Reference, s_m: np.ndarray, u_m: np.ndarray, valid: np.ndar
     n_win = max(int(WINDOW_M / step), 8)
     starts = np.arange(0, s_m.size - n_win + 1, n_win)
     for _ in range(2):
-        s_c, x_c, r_c = [], [], []
-        for j in starts:
+        s_c: list[float] = []
+        x_c: list[float] = []
+        r_c: list[float] = []
+        for j in starts.tolist():
             sl = slice(j, j + n_win)
             if valid[sl].mean() < MIN_OVERLAP:
                 continue

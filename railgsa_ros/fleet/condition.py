@@ -16,6 +16,7 @@ trend then starts at its first detection.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import duckdb
 import numpy as np
@@ -26,6 +27,9 @@ from railgsa_ros.fleet.defects import DETECT_FRACTION, Peak, detect, match, meas
 from railgsa_ros.fleet.fuse import fuse_line, pass_scatter
 from railgsa_ros.fleet.trend import crossing, fit_trend
 from railgsa_ros.review.limits import LEVELS, Limits
+
+if TYPE_CHECKING:
+    from railgsa_ros.geo import Line
 
 DAY_NS = 86400 * 10**9
 MAX_DAYS = 1e5  # projections beyond ~2240 are reported as none
@@ -87,7 +91,7 @@ def _level(depth_m: float, limits_row: np.ndarray) -> tuple[str, str, float]:
 
 
 def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
-                limits: Limits, geometry: object | None = None,
+                limits: Limits, geometry: Line | None = None,
                 fraction: float = DETECT_FRACTION) -> None:
     """Recompute the line's scatter, fused profile, detections and defects (module docstring);
     with a ``geo.Line`` in the line's frame, the defects get their WGS84 position; defects are
@@ -138,7 +142,7 @@ def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
 
 def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, rows: dict[str, list],
            x_def: np.ndarray, sign_def: np.ndarray, limits: Limits,
-           geometry: object | None) -> None:
+           geometry: Line | None) -> None:
     """Write the line's detections and defects (replacing the previous ones); WGS84
     positions from ``geometry`` (None: NULL)."""
     key = [line, track]
@@ -183,7 +187,7 @@ def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int,
     now = float(t_days[-1])
     depth, depth_sd = (float(obs['depth'][use][-1]), float(obs['depth_sd'][use][-1]))
     rate = rate_se = float('nan')
-    dates = (None, None, None)
+    dates: tuple[object, ...] = (None, None, None)
     if trend is not None:
         fitted, fitted_sd = trend.at(now)
         depth, depth_sd = float(fitted), float(fitted_sd)

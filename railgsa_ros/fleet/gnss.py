@@ -13,12 +13,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from railgsa_ros.bag.reader import GnssFixes
 from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.fleet.align import Alignment
+
+if TYPE_CHECKING:
+    from railgsa_ros.geo import Line
 
 GNSS_TOPIC = '/gnss/fix'
 DEFAULT_VAR_M2 = 25.0  # horizontal variance when a fix gives none (5 m: a plain receiver)
@@ -40,7 +44,7 @@ def horizontal_variance(fixes: GnssFixes) -> np.ndarray:
 
 
 def load_geometry(path: str | Path, start_m: float | None = None,
-                  line_id: str = 'line') -> object:
+                  line_id: str = 'line') -> Line:
     """A ``geo.Line`` from a GeoJSON LineString (a bare geometry, a Feature or the first
     Feature of a FeatureCollection; coordinates lon, lat) or a CSV with a header lat,lon; the
     chainage at its first vertex is ``start_m``, else the Feature's ``start_m`` property, else
@@ -70,13 +74,13 @@ def load_geometry(path: str | Path, start_m: float | None = None,
         raise InputError(f'{path}: not a line geometry ({exc})'.splitlines()[0]) from None
 
 
-def geometry_json(line: object) -> str:
+def geometry_json(line: Line) -> str:
     """A line geometry as JSON text (vertices in degrees, chainage of the first one, id)."""
     return json.dumps({'lat': line.lat_deg.tolist(), 'lon': line.lon_deg.tolist(),
                        'start_m': line.start_m, 'line_id': line.line_id})
 
 
-def line_from_json(text: str) -> object:
+def line_from_json(text: str) -> Line:
     """The ``geo.Line`` of ``geometry_json``."""
     from railgsa_ros.geo import Line
 
@@ -107,7 +111,7 @@ def gnss_alignment(s_fix: np.ndarray, x_fix: np.ndarray, var_m2: np.ndarray
                      windows=int(keep.sum()))
 
 
-def align_fixes(fixes: GnssFixes, stamps_ns: np.ndarray, s_m: np.ndarray, line: object
+def align_fixes(fixes: GnssFixes, stamps_ns: np.ndarray, s_m: np.ndarray, line: Line
                 ) -> Alignment | None:
     """The GNSS alignment of a pass: its cells' stamps (N,) and odometry chainage (N,), the
     fixes with a position inside the pass's time span projected on ``line``."""

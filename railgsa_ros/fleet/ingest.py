@@ -15,6 +15,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import duckdb
 import numpy as np
@@ -26,6 +27,11 @@ from railgsa_ros.fleet.gnss import align_fixes, geometry_json, line_from_json
 from railgsa_ros.fleet.passes import PassFailure, PassOptions, PassResult, analyse_or_fail
 from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.sections import section_sd
+
+if TYPE_CHECKING:
+    from dask.distributed import Client
+
+    from railgsa_ros.geo import Line
 
 HOST = '127.0.0.1'  # a LocalCluster listens on loopback only
 RETRIES = 2  # Dask reruns a task whose worker died or that raised unexpectedly
@@ -42,7 +48,7 @@ class Outcome:
 
 
 @contextmanager
-def dask_client(scheduler: str | None, workers: int) -> Iterator[object]:
+def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
     """A distributed Client on ``scheduler``, or on a LocalCluster of ``workers`` processes with
     one thread each; scheduler, workers and the HTTP endpoint on 127.0.0.1 (a free port)."""
     from dask.distributed import Client, LocalCluster
@@ -84,7 +90,7 @@ def _pass_row(con: duckdb.DuckDBPyConnection, bag: str, options: PassOptions, st
               message: str, result: PassResult | None = None,
               alignment: Alignment | None = None) -> int:
     """Insert the passes row; returns its id."""
-    pid = con.execute("SELECT nextval('pass_ids')").fetchone()[0]
+    (pid,) = con.execute("SELECT nextval('pass_ids')").fetchone() or (None,)
     o = options
     values = [pid, bag, o.line, o.track, o.direction, None, None, o.vehicle_id, None, None, None,
               None, None, None, None, None, None, None, status, message, datetime.now()]
@@ -98,7 +104,7 @@ def _pass_row(con: duckdb.DuckDBPyConnection, bag: str, options: PassOptions, st
     return int(pid)
 
 
-def _align(ref: Reference | None, result: PassResult, geometry: object | None,
+def _align(ref: Reference | None, result: PassResult, geometry: Line | None,
            frame: str | None, frame_cov: np.ndarray | None) -> Alignment | None:
     """GNSS (when the pass has fixes, the line a geometry and a GNSS frame), refined by
     cross-correlation against the reference (searched around the GNSS position, or over the
@@ -121,7 +127,7 @@ def _align(ref: Reference | None, result: PassResult, geometry: object | None,
 
 
 def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult,
-               geometry: object | None = None) -> Outcome:
+               geometry: Line | None = None) -> Outcome:
     """Align one pass against its line, write its rows; status 'ok' or 'unaligned'."""
     o, dx = result.options, result.options.dx_m
     ref = _reference(con, o.line, o.track, dx)
@@ -169,7 +175,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _geometry(con: duckdb.DuckDBPyConnection, options: PassOptions,
-              given: object | None) -> object | None:
+              given: Line | None) -> Line | None:
     """The line geometry: the one given (stored for the line if it has none yet), else the
     stored one, else None."""
     key = [options.line, options.track]
@@ -185,7 +191,7 @@ def _geometry(con: duckdb.DuckDBPyConnection, options: PassOptions,
 def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions,
            scheduler: str | None = None, workers: int = 2,
            report: Callable[[Outcome], None] | None = None,
-           geometry: object | None = None) -> list[Outcome]:
+           geometry: Line | None = None) -> list[Outcome]:
     """Ingest ``bags`` (module docstring); ``report(outcome)`` as each bag is done;
     ``geometry``: the line's ``geo.Line`` for GNSS anchoring (else the one stored)."""
     con = db.connect(db_path)

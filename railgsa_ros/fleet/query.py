@@ -34,7 +34,7 @@ def line_span_km(con: duckdb.DuckDBPyConnection, line: str, track: str | None = 
     lo, hi = con.execute("""SELECT min(f.cell * l.dx_m), max(f.cell * l.dx_m) FROM fused f
                             JOIN lines l USING (line, track)
                             WHERE line = $line AND ($track IS NULL OR track = $track)""",
-                         {'line': line, 'track': track}).fetchone()
+                         {'line': line, 'track': track}).fetchone() or (None, None)
     return (float('nan'), float('nan')) if lo is None else (lo / 1000.0, hi / 1000.0)
 
 

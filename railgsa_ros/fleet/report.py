@@ -8,6 +8,7 @@ flagged) and the pass table (failed and unaligned passes with their message).
 
 from __future__ import annotations
 
+from datetime import date
 from html import escape
 from pathlib import Path
 import re
@@ -124,7 +125,7 @@ def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: 
     return path
 
 
-def epoch_days(value: object) -> float:
+def epoch_days(value: date) -> float:
     """Days since the epoch of a date or datetime."""
     return float(np.datetime64(value, 'ns').astype(np.int64)) / DAY_NS
 

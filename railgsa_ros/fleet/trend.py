@@ -34,7 +34,7 @@ class Trend:
         """Standard error of the rate (m/day)."""
         return float(np.sqrt(self.cov[1, 1]))
 
-    def at(self, t_days: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def at(self, t_days: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Fitted depth (m) and its standard deviation (m) at times t (days)."""
         dt = np.asarray(t_days, dtype=float) - self.t0_days
         c = self.cov
