@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+import mmap
 
 import numpy as np
 
@@ -83,8 +84,8 @@ class CellStore:
 
     def _block(self, index: int) -> tuple[list[np.ndarray], np.ndarray]:
         if index not in self._blocks:
-            self._blocks[index] = ([np.full(BLOCK, np.nan, d) for d in self.dtypes],
-                                   np.zeros(BLOCK, bool))
+            self._blocks[index] = ([_mapped(BLOCK, d, np.nan) for d in self.dtypes],
+                                   _mapped(BLOCK, np.dtype(bool), False))
         return self._blocks[index]
 
     @property
@@ -113,6 +114,15 @@ class CellStore:
                     out[lo - first:hi - first] = col[lo - i * BLOCK:hi - i * BLOCK]
                 valid[lo - first:hi - first] = ok[lo - i * BLOCK:hi - i * BLOCK]
         return first, columns, valid
+
+
+def _mapped(count: int, dtype: np.dtype, fill: float | bool) -> np.ndarray:
+    """``count`` values ``fill`` in an anonymous memory map of their own, not in the malloc
+    heap: ``CellStore.take`` hands the blocks back to the system one by one (freed heap blocks
+    stay resident; measured at the end of a 10 h review: 100 MB of freed blocks)."""
+    out = np.frombuffer(mmap.mmap(-1, count * dtype.itemsize), dtype)
+    out[:] = fill
+    return out
 
 
 class CellInterpolator:
