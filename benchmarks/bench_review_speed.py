@@ -89,7 +89,7 @@ def main() -> None:
             rows.append((label, *timed(lambda u=uncertain: review_once(bag, Path(tmp) / 'out',
                                                                         u))))
     print(f'{span:.0f} s of {args.rate:g} Hz IMU data ({samples} samples), one CPU, '
-          f'OPENBLAS_NUM_THREADS=1')
+          f'OPENBLAS_NUM_THREADS=1, load average {os.getloadavg()[0]:.1f} at the end')
     print(f'{"":<26}{"wall s":>8}{"x real time":>12}{"CPU s":>7}{"x real (CPU)":>13}'
           f'{"/ baseline":>11}{"peak MB":>8}   stages [s]')
     base = rows[0][1]
