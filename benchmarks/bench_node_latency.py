@@ -1,16 +1,17 @@
 """CPU, latency and loss of irregularity_node and uncertainty_node against a bare relay.
 
-One run measures, at each input rate (default 1 and 4 kHz), three subjects one after the other
-(each with a fresh IMU publisher and receiver, so they never compete for the two cores):
-the baseline relay (a bare typed rclpy node: subscribe imu/data with the nodes' QoS, republish
-every message on relay/imu), ``irregularity_node`` and ``uncertainty_node``. Every process sets
-ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a ROS_DOMAIN_ID reserved for the run.
+One run measures, at each input rate (default 1 and 4 kHz), ``irregularity_node`` and then
+``uncertainty_node``, each side by side with the baseline: a bare typed rclpy relay (subscribe
+imu/data with the nodes' QoS, republish every message on relay/imu) fed by the same IMU
+publisher at the same time, so that node and relay see the same load of the shared machine.
+Every process sets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a ROS_DOMAIN_ID reserved for the
+run.
 
 - The publisher sends pre-serialized Imu messages (nominal stamps t0 + k / rate, simulated
-  car-body acceleration at 20 m/s) once the subject's reader matched; the receiver reads the
-  subject's output with a raw subscription in a thread of its own (a Python executor could not
-  take 4 kHz). Publish and receive times are CLOCK_MONOTONIC, shared by the processes.
-- CPU: utime + stime of the subject process (/proc/<pid>/stat) over the publishing window,
+  car-body acceleration at 20 m/s) once both readers matched; the receiver reads both outputs
+  with raw subscriptions in a thread of its own (a Python executor could not take 2 x 4 kHz).
+  Publish and receive times are CLOCK_MONOTONIC, shared by the processes.
+- CPU: utime + stime of each measured process (/proc/<pid>/stat) over the publishing window,
   in % of one core.
 - Latency (ms): relay: receive time of relay/imu stamped k minus publish time of sample k.
   Node: its band filter has a fixed delay of D samples (read from its /diagnostics), so output
@@ -18,6 +19,8 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and a ROS_DOMAIN_ID reserved for the run
   sample k + D. uncertainty_node works in batches every ``process_period_s`` (50 ms), so its
   latency includes up to one period by design.
 - Lost: samples 0..N-1-D without their output (the last D wait for input that never comes).
+  Every subject's reader and writer histories hold one second (``imu_qos_depth`` and
+  ``output_qos_depth`` = rate).
 
 Prints a table with the node/relay ratios and the issue's targets: irregularity_node CPU <=
 relay, uncertainty_node CPU <= 1.5x relay at 1 kHz, p99 <= relay's, no loss at 4 kHz.
@@ -53,6 +56,12 @@ SUBJECTS = {'relay': (RELAY_TOPIC, 'sensor_msgs/msg/Imu', None),
                                  'uncertainty_node: uncertainty')}
 T0_STAMP_NS = 1_000_000_000_000
 LEAD_S = 2.0  #: after the reader matched: time for the subject's output to match the receiver
+
+
+def history_depth(rate_hz: float) -> int:
+    """Every subject's imu/data reader and output writer history: one second of samples (the
+    nodes' rule, docs/nodes.md: 1000 at 1 kHz, so 4000 at 4 kHz)."""
+    return max(1000, round(rate_hz))
 
 
 def _ros_env(domain_id: int) -> dict[str, str]:
@@ -99,7 +108,7 @@ def role_publish(args: argparse.Namespace) -> None:
     node = rclpy.create_node('bench_imu_publisher')
     pub = node.create_publisher(Imu, IMU_TOPIC, sensor_qos())
     deadline = time.monotonic() + 60.0
-    while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+    while pub.get_subscription_count() < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
     time.sleep(LEAD_S)
     Path(args.out, 'started').touch()
@@ -128,14 +137,16 @@ def role_relay(args: argparse.Namespace) -> None:
 
     rclpy.init()
     node = rclpy.create_node('bench_relay')
-    pub = node.create_publisher(Imu, RELAY_TOPIC, output_qos())
-    node.create_subscription(Imu, IMU_TOPIC, pub.publish, sensor_qos())
+    depth = history_depth(args.rate)
+    pub = node.create_publisher(Imu, RELAY_TOPIC, output_qos(depth))
+    node.create_subscription(Imu, IMU_TOPIC, pub.publish, sensor_qos(depth))
     _spin_until_signal(node)
     rclpy.try_shutdown()
 
 
 def role_receive(args: argparse.Namespace) -> None:
-    """Record (stamp, receive time) of the subject's output and its /diagnostics until SIGINT."""
+    """Record (stamp, receive time) of the relay's and the node's output and the node's
+    /diagnostics until SIGINT."""
     from diagnostic_msgs.msg import DiagnosticArray
     import rclpy
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -145,27 +156,30 @@ def role_receive(args: argparse.Namespace) -> None:
     from railgsa_ros.nodes.imu_input import RawSubscription
     from railgsa_ros.nodes.qos import output_qos
 
-    topic, msgtype, _ = SUBJECTS[args.subject]
-    package, _, name = msgtype.split('/')
-    msg_cls = getattr(__import__(f'{package}.msg', fromlist=[name]), name)
     rclpy.init()
     node = rclpy.create_node('bench_receiver')
-    sub = RawSubscription(node, msg_cls, topic, output_qos(100_000))
-    raws: list[bytes] = []
-    times: list[int] = []
+    subs, log = {}, {}
+    for subject in ('relay', args.subject):
+        topic, msgtype, _ = SUBJECTS[subject]
+        package, _, name = msgtype.split('/')
+        msg_cls = getattr(__import__(f'{package}.msg', fromlist=[name]), name)
+        subs[subject] = RawSubscription(node, msg_cls, topic, output_qos(100_000))
+        log[subject] = ([], [])
     diag: dict[str, str] = {}
     stop = threading.Event()
 
     def read() -> None:
-        wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+        wait_set = _rclpy.WaitSet(len(subs), 0, 0, 0, 0, 0, node.context.handle)
         while not stop.is_set():
             wait_set.clear_entities()
-            wait_set.add_subscription(sub.handle)
+            for sub in subs.values():
+                wait_set.add_subscription(sub.handle)
             wait_set.wait(100_000_000)
             now = time.monotonic_ns()
-            got = sub.take(100_000)
-            raws.extend(got)
-            times.extend([now] * len(got))
+            for subject, sub in subs.items():
+                got = sub.take(100_000)
+                log[subject][0].extend(got)
+                log[subject][1].extend([now] * len(got))
 
     def on_diag(msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -177,11 +191,13 @@ def role_receive(args: argparse.Namespace) -> None:
     _spin_until_signal(node)
     stop.set()
     reader.join(5.0)
-    stamps = decode(LAYOUTS[msgtype], raws).stamps_ns
     out = Path(args.out)
-    np.savez(out / 'receive.npz', stamps=stamps, times=np.array(times, np.int64))
+    for subject, (raws, times) in log.items():
+        stamps = decode(LAYOUTS[SUBJECTS[subject][1]], raws).stamps_ns
+        np.savez(out / f'receive_{subject}.npz', stamps=stamps, times=np.array(times, np.int64))
     (out / 'diagnostics.json').write_text(json.dumps(diag, indent=1))
-    sub.destroy()
+    for sub in subs.values():
+        sub.destroy()
     rclpy.try_shutdown()
 
 
@@ -203,93 +219,113 @@ def _latencies(pub: dict, rec: dict, delay: int) -> tuple[np.ndarray, int]:
     return lat, n - first.size
 
 
-def _subject_command(subject: str, me: list[str], common: list[str], rate: float) -> list[str]:
+def _subject_command(subject: str, me: list[str], common: list[str], rate: float,
+                     period_s: float | None) -> list[str]:
     if subject == 'relay':
         return [*me, 'relay', *common]
+    period = [] if period_s is None or subject != 'irregularity_node' else \
+        ['-p', f'process_period_s:={period_s!r}']
     return [sys.executable, '-m', f'railgsa_ros.nodes.{subject}', '--ros-args',
-            '-p', f'speed_mps:={SPEED_MPS}', '-p', 'use_odom:=false', '-p', f'rate_hz:={rate:g}']
+            '-p', f'speed_mps:={SPEED_MPS}', '-p', 'use_odom:=false', '-p', f'rate_hz:={rate:g}',
+            '-p', f'imu_qos_depth:={history_depth(rate)}',
+            '-p', f'output_qos_depth:={history_depth(rate)}', *period]
 
 
-def measure(subject: str, rate: float, duration: float, domain: int) -> dict:
-    """One subject at one rate: CPU %, latencies, lost, band delay, exit code."""
+def _summary(lat: np.ndarray, lost: int, cpu: float, delay: int, code: object) -> dict:
+    p50, p99 = np.percentile(lat, [50, 99]) if lat.size else (np.nan, np.nan)
+    return {'cpu': cpu, 'p50': p50, 'p99': p99, 'max': lat.max() if lat.size else np.nan,
+            'received': lat.size, 'lost': lost, 'delay': delay, 'exit': code}
+
+
+def measure(node: str, rate: float, duration: float, domain: int,
+            period_s: float | None = None) -> dict[str, dict]:
+    """One node side by side with the relay at one rate: per process CPU %, latencies, lost,
+    band delay, exit code."""
     env = _ros_env(domain)
     me = [sys.executable, str(Path(__file__).resolve())]
     with tempfile.TemporaryDirectory(prefix='bench_node_latency_') as tmp:
         common = ['--out', tmp, '--duration', str(duration), '--rate', str(rate),
-                  '--subject', subject]
+                  '--subject', node]
         receiver = subprocess.Popen([*me, 'receive', *common], env=env)
-        proc = subprocess.Popen(_subject_command(subject, me, common, rate), env=env)
+        procs = {s: subprocess.Popen(_subject_command(s, me, common, rate, period_s), env=env)
+                 for s in ('relay', node)}
         publisher = subprocess.Popen([*me, 'publish', *common], env=env)
         while not Path(tmp, 'started').exists() and publisher.poll() is None:
             time.sleep(0.01)
-        cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
+        cpu0, wall0 = {s: _cpu_seconds(p.pid) for s, p in procs.items()}, time.monotonic()
         publisher.wait()
-        wall, cpu = time.monotonic() - wall0 - 1.0, _cpu_seconds(proc.pid) - cpu0
+        wall = time.monotonic() - wall0 - 1.0  # the publisher's last second is idle
+        cpu = {s: 100 * (_cpu_seconds(p.pid) - cpu0[s]) / wall for s, p in procs.items()}
         time.sleep(1.0)  # the last outputs arrive
         codes = {}
-        for name, p in (('subject', proc), ('receiver', receiver)):
+        for name, p in (*procs.items(), ('receiver', receiver)):
             p.send_signal(signal.SIGINT)
             try:
                 codes[name] = p.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 p.kill()
                 codes[name] = 'killed'
-        if publisher.returncode != 0 or not Path(tmp, 'receive.npz').exists():
-            raise SystemExit(f'{subject} at {rate:g} Hz: publisher exit {publisher.returncode}, '
+        if publisher.returncode != 0 or not Path(tmp, f'receive_{node}.npz').exists():
+            raise SystemExit(f'{node} at {rate:g} Hz: publisher exit {publisher.returncode}, '
                              f'receiver {codes["receiver"]}')
         pub = dict(np.load(Path(tmp) / 'publish.npz'))
-        rec = dict(np.load(Path(tmp) / 'receive.npz'))
+        rec = {s: dict(np.load(Path(tmp) / f'receive_{s}.npz')) for s in procs}
         diag = json.loads((Path(tmp) / 'diagnostics.json').read_text())
-    task = SUBJECTS[subject][2]
-    delay = 0 if task is None else int(diag.get(f'{task}/band_delay_samples', -1))
+    delay = int(diag.get(f'{SUBJECTS[node][2]}/band_delay_samples', -1))
     if delay < 0:
-        raise SystemExit(f'{subject} published no /diagnostics (exit code {codes["subject"]})')
-    lat, lost = _latencies(pub, rec, delay)
-    p50, p99 = np.percentile(lat, [50, 99]) if lat.size else (np.nan, np.nan)
-    return {'cpu': 100 * cpu / wall, 'p50': p50, 'p99': p99,
-            'max': lat.max() if lat.size else np.nan, 'received': lat.size, 'lost': lost,
-            'delay': delay, 'exit': codes['subject']}
+        raise SystemExit(f'{node} published no /diagnostics (exit code {codes[node]})')
+    out = {}
+    for subject, d in (('relay', 0), (node, delay)):
+        lat, lost = _latencies(pub, rec[subject], d)
+        out[subject] = _summary(lat, lost, cpu[subject], d, codes[subject])
+    return out
 
 
 def report(rows: dict[tuple[float, str], dict], load: tuple[float, float]) -> bool:
-    """Print the table and the targets; whether every target was met."""
+    """Print the table (each node against the relay of its own run) and the targets; whether
+    every target was met."""
     print(f'\nload average before / after: {load[0]:.1f} / {load[1]:.1f} (2 shared cores)')
     print('| rate Hz | process | CPU % of a core | p50 ms | p99 ms | max ms | lost | '
           'CPU / relay | p99 / relay |')
     print('|---|---|---|---|---|---|---|---|---|')
-    for (rate, subject), r in rows.items():
-        base = rows[(rate, 'relay')]
-        print(f'| {rate:g} | {subject} | {r["cpu"]:.1f} | {r["p50"]:.2f} | {r["p99"]:.2f} | '
-              f'{r["max"]:.1f} | {r["lost"]} | {r["cpu"] / base["cpu"]:.2f} | '
-              f'{r["p99"] / base["p99"]:.2f} |')
+    for (rate, node), pair in rows.items():
+        base = pair['relay']
+        for subject, r in (('relay', base), (node, pair[node])):
+            label = f'relay (beside {node})' if subject == 'relay' else node
+            print(f'| {rate:g} | {label} | {r["cpu"]:.1f} | {r["p50"]:.2f} | {r["p99"]:.2f} | '
+                  f'{r["max"]:.1f} | {r["lost"]} | {r["cpu"] / base["cpu"]:.2f} | '
+                  f'{r["p99"] / base["p99"]:.2f} |')
     checks = []
-    low, high = min(r for r, _ in rows), max(r for r, _ in rows)
-    for subject, cpu_ratio in (('irregularity_node', 1.0), ('uncertainty_node', 1.5)):
-        r, base = rows[(low, subject)], rows[(low, 'relay')]
-        checks.append((f'{subject} CPU <= {cpu_ratio:g} x relay at {low:g} Hz',
-                       r['cpu'] <= cpu_ratio * base['cpu']))
-    for rate in sorted({r for r, _ in rows}):
-        r, base = rows[(rate, 'irregularity_node')], rows[(rate, 'relay')]
+    rates = sorted({rate for rate, _ in rows})
+    for node, cpu_ratio in (('irregularity_node', 1.0), ('uncertainty_node', 1.5)):
+        pair = rows[(rates[0], node)]
+        checks.append((f'{node} CPU <= {cpu_ratio:g} x relay at {rates[0]:g} Hz',
+                       pair[node]['cpu'] <= cpu_ratio * pair['relay']['cpu']))
+    for rate in rates:
+        pair = rows[(rate, 'irregularity_node')]
         checks.append((f'irregularity_node p99 <= relay p99 at {rate:g} Hz',
-                       r['p99'] <= base['p99']))
-    for subject in ('irregularity_node', 'uncertainty_node'):
-        checks.append((f'{subject} no loss at {high:g} Hz', rows[(high, subject)]['lost'] == 0))
+                       pair['irregularity_node']['p99'] <= pair['relay']['p99']))
+    for node in ('irregularity_node', 'uncertainty_node'):
+        checks.append((f'{node} no loss at {rates[-1]:g} Hz', rows[(rates[-1], node)][node][
+            'lost'] == 0))
     for text, ok in checks:
         print(f'{"PASS" if ok else "FAIL"}  {text}')
     return all(ok for _, ok in checks)
 
 
 def drive(args: argparse.Namespace) -> int:
-    """Every subject at every rate, then the table."""
+    """Both nodes (each beside the relay) at every rate, then the table."""
     domain, _held = reserve_domain()
     load0 = os.getloadavg()[0]
     rows = {}
     for rate in args.rates:
-        for subject in SUBJECTS:
-            rows[(rate, subject)] = r = measure(subject, rate, args.duration, domain)
-            print(f'{subject} at {rate:g} Hz: CPU {r["cpu"]:.1f} %, p50 {r["p50"]:.2f} ms, '
-                  f'p99 {r["p99"]:.2f} ms, lost {r["lost"]}, D {r["delay"]}, '
-                  f'exit {r["exit"]}', flush=True)
+        for node in ('irregularity_node', 'uncertainty_node'):
+            rows[(rate, node)] = pair = measure(node, rate, args.duration, domain,
+                                                args.process_period)
+            for subject, r in pair.items():
+                print(f'{subject} at {rate:g} Hz: CPU {r["cpu"]:.1f} %, p50 {r["p50"]:.2f} ms, '
+                      f'p99 {r["p99"]:.2f} ms, lost {r["lost"]}, D {r["delay"]}, '
+                      f'exit {r["exit"]}', flush=True)
     report(rows, (load0, os.getloadavg()[0]))
     return 0
 
@@ -303,10 +339,12 @@ def main(argv: list[str] | None = None) -> int:
                         '(about 7 s) so that the nodes emit outputs')
     parser.add_argument('--rates', type=float, nargs='+', default=[1000.0, 4000.0],
                         help='IMU rates, Hz')
+    parser.add_argument('--process-period', type=float,
+                        help="irregularity_node's process_period_s (default: the node's, 5 ms)")
     parser.add_argument('--rate', type=float, default=1000.0, help='(internal) IMU rate, Hz')
     parser.add_argument('--out', help='(internal) directory for the roles\' results')
-    parser.add_argument('--subject', choices=sorted(SUBJECTS), default='relay',
-                        help='(internal) the process measured')
+    parser.add_argument('--subject', choices=sorted(SUBJECTS), default='irregularity_node',
+                        help='(internal) the node measured beside the relay')
     args = parser.parse_args(argv)
     if args.role == 'drive' and args.duration <= 10.0:
         parser.error('--duration must exceed 10 s: the nodes emit nothing during their band '
