@@ -14,12 +14,12 @@ their CRC-32. rosbags' ``Writer`` still does the rosbag2 part (connections, QoS,
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from importlib.metadata import version
 from pathlib import Path
 import struct
 from types import MappingProxyType
-from typing import Any, ClassVar
+from typing import Any
 import zlib
 
 from mcap.data_stream import RecordBuilder
@@ -165,7 +165,8 @@ class McapStorage:
             chunk_count=len(self._chunks),
             message_start_time=self._span[0] if self._chunks else 0,
             message_end_time=self._span[1], channel_message_counts=dict(self._counts))
-        groups = [(Opcode.SCHEMA, list(self._schemas.values())),
+        groups: list[tuple[int, Sequence[McapRecord]]] = [
+                  (Opcode.SCHEMA, list(self._schemas.values())),
                   (Opcode.CHANNEL, self._channels), (Opcode.STATISTICS, [stats]),
                   (Opcode.CHUNK_INDEX, self._chunks), (Opcode.METADATA_INDEX, [meta_index])]
         summary, offsets = b'', []
@@ -245,8 +246,8 @@ def _record(record: McapRecord) -> bytes:
 class RosbagWriter(Writer):
     """rosbags' rosbag2 Writer with :class:`McapStorage` for MCAP and ``write_parts``."""
 
-    STORAGE_PLUGINS: ClassVar = MappingProxyType({**Writer.STORAGE_PLUGINS,
-                                                  StoragePlugin.MCAP: McapStorage})
+    STORAGE_PLUGINS: Mapping[StoragePlugin, Any] = MappingProxyType(
+        {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: McapStorage})
 
     def write_parts(self, parts: Sequence[tuple[Any, np.ndarray, np.ndarray]],
                     ties: Sequence[np.ndarray] | None = None) -> None:

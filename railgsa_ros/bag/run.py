@@ -54,7 +54,7 @@ class RunEncoder:
                  odom_rate_hz: float = 50.0, frame_id: str | None = None,
                  odom: TickSampler | None = None, origin_m: float | None = None) -> None:
         self.run = run
-        self.frame_id = frame_id or getattr(run, 'frame_id', 'imu_link')
+        self.frame_id = str(frame_id or getattr(run, 'frame_id', None) or 'imu_link')
         if accel_variance is None:
             accel_variance = getattr(run, 'accel_covariance', 0.0)
         self.accel_variance = float(accel_variance)
@@ -182,8 +182,8 @@ def write_run_chunks(path: str | Path, chunks: Iterable[Any], storage: str = 'mc
                 for topic, msgtype, offered in topics.values():
                     bag.add_topic(topic, msgtype, offered)
             for start in range(0, len(encoder), WRITE_CHUNK):
-                batches: dict[str, Batch] = encoder.encode_rows(start, start + WRITE_CHUNK,
-                                                                offset_ns)
+                batches: dict[str, Batch] = {**encoder.encode_rows(start, start + WRITE_CHUNK,
+                                                                   offset_ns)}
                 if gnss is not None:
                     stop = start + WRITE_CHUNK
                     batches['gnss'] = navsat_messages(
@@ -195,6 +195,7 @@ def write_run_chunks(path: str | Path, chunks: Iterable[Any], storage: str = 'mc
                         count = written.setdefault(key, [0, int(stamps[0]), 0])
                         count[0] += len(stamps)
                         count[2] = int(stamps[-1])
-    summaries = [TopicSummary(topics[k][0], topics[k][1], *written.get(k, (0, 0, 0)))
-                 for k in (topics or {})]
+    declared = topics or {}
+    summaries = [TopicSummary(declared[k][0], declared[k][1], *written.get(k, (0, 0, 0)))
+                 for k in declared]
     return Path(path), sorted(summaries, key=lambda t: t.topic)

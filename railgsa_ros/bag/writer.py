@@ -67,11 +67,10 @@ class BagWriter:
 
     def add_topic(self, topic: str, msgtype: str, offered_qos: Qos | None = None) -> None:
         """Declare a topic; the default offered QoS is RELIABLE, KEEP_LAST 10."""
-        if self._writer is None:
-            raise RuntimeError('BagWriter is not open')
+        writer = self._open()
         if topic in self._connections:
             raise ConfigError(f'{self.path}: topic {topic} added twice')
-        self._connections[topic] = self._writer.add_connection(
+        self._connections[topic] = writer.add_connection(
             topic, msgtype, typestore=typestore(),
             offered_qos_profiles=[offered_qos or record_qos(True, 10)])
 
@@ -80,7 +79,7 @@ class BagWriter:
         conn = self._connections[topic]
         if not isinstance(msg, (bytes, bytearray, memoryview)):
             msg = typestore().serialize_cdr(msg, conn.msgtype)
-        self._writer.write(conn, int(log_time_ns), msg)
+        self._open().write(conn, int(log_time_ns), msg)
 
     def write_batches(self, batches: Mapping[str, Batch]) -> None:
         """Write serialised messages of several topics interleaved in log-time order (stable:
@@ -93,7 +92,12 @@ class BagWriter:
             for rows, at in _blocks(raws):
                 parts.append((self._connections[topic], times[at], rows))
                 ties.append((rank << 40) + at)
-        self._writer.write_parts(parts, ties)
+        self._open().write_parts(parts, ties)
+
+    def _open(self) -> RosbagWriter:
+        if self._writer is None:
+            raise RuntimeError('BagWriter is not open')
+        return self._writer
 
 
 def _blocks(raws: np.ndarray | Sequence[bytes]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -104,6 +108,6 @@ def _blocks(raws: np.ndarray | Sequence[bytes]) -> list[tuple[np.ndarray, np.nda
     out = []
     for length in np.unique(lengths):
         at = np.flatnonzero(lengths == length)
-        flat = b''.join(bytes(raws[i]) for i in at)
+        flat = b''.join(bytes(raws[int(i)]) for i in at)
         out.append((np.frombuffer(flat, np.uint8).reshape(at.size, int(length)), at))
     return out
