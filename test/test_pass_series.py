@@ -202,3 +202,18 @@ def test_fleet_ingest_places_the_series_defects_with_gnss(tmp_path: Path, capsys
         near = [f for f in found if abs(1e3 * f['km'] - d['centre_m']) < 1.0]
         assert len(near) == 1, (d['centre_m'], [f['km'] for f in found])
         assert near[0]['new'] == (d['first_pass'] == 3), found
+
+
+def test_a_pass_with_a_stop_reviews_against_its_own_truth(tmp_path: Path):
+    """Every third pass of the default series stands still: its truth topic repeats the
+    chainage there. ``railgsa review --truth`` of such a bag compares instead of refusing it."""
+    out = tmp_path / 'series'
+    assert main(['simulate-passes', '--out', str(out), '--passes', '1', '--stop-every', '1',
+                 '--section-km', '0.3-0.9', '--defects', '', '--rate', '200',
+                 '--speed-range', '15-15']) == 0
+    truth = json.loads((out / 'truth' / 'pass_01.json').read_text())
+    assert 'stop:' in truth['speed_profile']
+    bag = out / 'pass_01'
+    assert main(['review', str(bag), '--out', str(tmp_path / 'review'), '--truth', str(bag),
+                 '--no-uncertainty']) == 0
+    assert (tmp_path / 'review' / 'truth.png').stat().st_size > 5000

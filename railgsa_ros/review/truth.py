@@ -55,7 +55,7 @@ class Truth:
 
 def load_truth(path: str | Path) -> Truth:
     """Read a truth bag or CSV (see the module docstring); InputError naming the file when it is
-    missing, unreadable, empty or not increasing in chainage."""
+    missing, unreadable, empty or decreasing in chainage (the repeats of a standstill dropped)."""
     path = Path(path)
     if path.suffix.lower() == '.csv':
         try:
@@ -68,10 +68,11 @@ def load_truth(path: str | Path) -> Truth:
         raise InputError(f'{path}: {TRUTH_TOPIC} has fewer than two messages')
     order = np.argsort(data.stamps_ns, kind='stable')
     stamps, x, u = data.stamps_ns[order], data.values[order, 0], data.values[order, 2]
-    if not np.all(np.isfinite(x) & np.isfinite(u)) or np.any(np.diff(x) <= 0):
+    if not np.all(np.isfinite(x) & np.isfinite(u)) or np.any(np.diff(x) < 0):
         raise InputError(f'{path}: {TRUTH_TOPIC} chainage (point.x) must be finite and '
-                         'increase with the stamps')
-    return Truth(path, x, u, stamps)
+                         'never decrease with the stamps')
+    moved = np.concatenate([[True], np.diff(x) > 0])  # a standstill repeats its chainage
+    return Truth(path, x[moved], u[moved], stamps[moved])
 
 
 def check_truth(path: str | Path) -> Truth | None:
@@ -96,17 +97,18 @@ def truth_on_grid(path: str | Path, run_stamp_ns: int, run_chainage_m: float,
     """A truth bag streamed onto the run's chainage (``Truth.aligned``) at the centres of the
     review's cells of ``dx_m``: the valid cells (less than grid.MAX_STEP_M between the samples
     around them), no stamps. InputError naming the file when the stamps go back, the chainage
-    does not increase with them or is not finite, or fewer than two messages."""
+    decreases with them (a standstill repeats it: no cell) or is not finite, or fewer than two
+    messages."""
     path = Path(path)
     offset = _offset(path, run_stamp_ns, chunk) - run_chainage_m
     cells, store = CellInterpolator(dx_m, MAX_STEP_M), CellStore([np.float64])
     last, count = (-np.inf, -np.inf), 0
     for batch in _truth_batches(path, chunk):
         stamps, x, u = batch.stamps_ns, batch.values[:, 0], batch.values[:, 2]
-        if not np.all(np.isfinite(x) & np.isfinite(u)) or np.any(
-                np.diff(np.concatenate([[last[1]], x])) <= 0):
+        if not np.all(np.isfinite(x) & np.isfinite(u)) or np.any(  # a standstill repeats it
+                np.diff(np.concatenate([[last[1]], x])) < 0):
             raise InputError(f'{path}: {TRUTH_TOPIC} chainage (point.x) must be finite and '
-                             'increase with the stamps')
+                             'never decrease with the stamps')
         if np.any(np.diff(np.concatenate([[last[0]], stamps])) < 0):
             raise InputError(f'{path}: {TRUTH_TOPIC} stamps go back in log-time order')
         last, count = (stamps[-1], x[-1]), count + stamps.size
