@@ -8,7 +8,9 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
 import pytest
+from ros_helpers import NS, G, imu_msgs
 
 pytestmark = pytest.mark.ros
 
@@ -64,11 +66,7 @@ def test_idle_node_is_stale_then_ok_then_warns_when_input_stops(
     assert abs(float(started) - time.time()) < 600 and repr(float(started)) == started
 
     assert wait_for(lambda: imu.get_subscription_count() > 0, 10.0)
-    for k in range(200):
-        msg = Imu()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = 1_700_000_000, k * 1_000_000
-        msg.header.frame_id = 'imu_link'
-        msg.linear_acceleration.z = 9.80665
+    for msg in imu_msgs(1_700_000_000 * NS + np.arange(200) * 1_000_000, np.full(200, G)):
         imu.publish(msg)
 
     def received(d: dict) -> str:

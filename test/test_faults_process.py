@@ -9,13 +9,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 import signal
-import threading
 import time
 from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline
+from ros_helpers import T0_NS, Collector, header_stamp, imu_msgs, stamp_ns, values
+from test_irregularity_node import PARAMS, offline
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -35,31 +35,19 @@ class Probe:
         from railgsa_ros.nodes.qos import DIAGNOSTICS_QOS, output_qos, sensor_qos
 
         self.node = spin(Node('fault_probe', context=ros_context))
-        self.lock = threading.Lock()
-        self.out: list[tuple[int, float]] = []
-        self.band: list[int] = []
-        self.diag: list[dict[str, str]] = []
         self.imu = self.node.create_publisher(Imu, 'imu/data', sensor_qos())
-        self.node.create_subscription(PointStamped, 'track/irregularity', lambda m: self._keep(
-            self.out, (self._ns(m.header), m.point.z)), output_qos(20_000))
-        self.node.create_subscription(Vector3Stamped, 'track/irregularity_band', lambda m:
-                                      self._keep(self.band, self._ns(m.header)),
-                                      output_qos(20_000))
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
-                                      DIAGNOSTICS_QOS)
+        self.out = Collector(self.node, PointStamped, 'track/irregularity', output_qos(20_000),
+                             lambda m: (stamp_ns(m.header), m.point.z))
+        self.band = Collector(self.node, Vector3Stamped, 'track/irregularity_band',
+                              output_qos(20_000), header_stamp)
+        # the values of each 'irregularity_node: inversion' status
+        self.diag = Collector(self.node, DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS,
+                              lambda m: [values(s) for s in m.status
+                                         if s.name == 'irregularity_node: inversion'])
 
-    @staticmethod
-    def _ns(header: Any) -> int:
-        return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-
-    def _keep(self, into: list, item: Any) -> None:
-        with self.lock:
-            into.append(item)
-
-    def _on_diag(self, msg: Any) -> None:
-        for s in msg.status:
-            if s.name == 'irregularity_node: inversion':
-                self._keep(self.diag, {kv.key: kv.value for kv in s.values})
+    def inversion(self) -> list[dict[str, str]]:
+        """The inversion statuses' values received so far, in order."""
+        return [v for rows in self.diag.snapshot() for v in rows]
 
     def publish(self, msgs: list) -> None:
         """At about 1 kHz, in 20-message bursts."""
@@ -92,9 +80,9 @@ def test_kill_and_restart_resumes_clean_and_others_keep_going(
     assert wait_for(lambda: probe.imu.get_subscription_count() >= 2, 90.0)
     assert wait_for(lambda: node.count_subscribers('track/irregularity') >= 2 and
                     node.count_subscribers('track/irregularity_band') >= 2, 60.0)
-    assert wait_for(lambda: len(probe.diag) > 0, 10.0)
+    assert wait_for(lambda: len(probe.inversion()) > 0, 10.0)
     time.sleep(0.5)
-    boot = probe.diag[-1]['boot_id']
+    boot = probe.inversion()[-1]['boot_id']
 
     probe.publish(msgs[:KILL_AT])
     assert wait_for(lambda: len(probe.out) > 0, 20.0)
@@ -107,24 +95,23 @@ def test_kill_and_restart_resumes_clean_and_others_keep_going(
         seen.append(len(probe.out))
         return len(seen) >= 5 and len(set(seen[-5:])) == 1
     assert wait_for(settled, 10.0, 0.1)
-    with probe.lock:
-        before, band_before = len(probe.out), len(probe.band)
+    before, band_before = len(probe.out), len(probe.band)
     probe.publish(msgs[KILL_AT:RESTART_AT])  # outage: the uncertainty node goes on
     assert wait_for(lambda: len(probe.band) > band_before, 10.0)
 
     restarted = start_node('railgsa_ros.nodes.irregularity_node', NODE_ARGS)
     assert wait_for(lambda: probe.imu.get_subscription_count() >= 2, 90.0)
-    assert wait_for(lambda: any(d['boot_id'] != boot for d in probe.diag), 60.0)
+    assert wait_for(lambda: any(d['boot_id'] != boot for d in probe.inversion()), 60.0)
     time.sleep(0.5)
     probe.publish(msgs[RESTART_AT:])
     ref = offline(stamps[RESTART_AT:], acc[RESTART_AT:])  # a fresh pipeline
     assert wait_for(lambda: len(probe.out) >= before + ref.stamps_ns.size, 30.0), \
         (len(probe.out) - before, ref.stamps_ns.size)
-    assert wait_for(lambda: probe.diag[-1].get('first_stamp_ns') == str(stamps[RESTART_AT]),
-                    10.0), probe.diag[-1]
-    with probe.lock:
-        new_t = np.array([o[0] for o in probe.out[before:]], np.int64)
-        new_u = np.array([o[1] for o in probe.out[before:]])
+    assert wait_for(lambda: probe.inversion()[-1].get('first_stamp_ns')
+                    == str(stamps[RESTART_AT]), 10.0), probe.inversion()[-1]
+    new = probe.out.snapshot()[before:]
+    new_t = np.array([o[0] for o in new], np.int64)
+    new_u = np.array([o[1] for o in new])
     np.testing.assert_array_equal(new_t, ref.stamps_ns)
     np.testing.assert_allclose(new_u, ref.u_m, rtol=0, atol=1e-15)  # a clean start
     full = offline(stamps, acc).u_m
@@ -139,7 +126,7 @@ def test_kill_and_restart_resumes_clean_and_others_keep_going(
         for conn, _, raw in reader.messages():
             recorded[conn.topic] += 1
             if conn.topic == '/track/irregularity':
-                irr_stamps.append(Probe._ns(reader.deserialize(raw, conn.msgtype).header))
+                irr_stamps.append(stamp_ns(reader.deserialize(raw, conn.msgtype).header))
     assert recorded['/track/irregularity_band'] > 0
     irr_stamps = np.array(irr_stamps)
     assert (irr_stamps < stamps[KILL_AT]).any() and (irr_stamps >= stamps[RESTART_AT]).any()

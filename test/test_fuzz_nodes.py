@@ -21,14 +21,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
-from test_irregularity_node import serialized
+from ros_helpers import NS, G, imu_msg, odometry_msg, serialized
 
 pytestmark = pytest.mark.ros
 
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True,
                 suppress_health_check=list(HealthCheck))
-NS = 1_000_000_000
-G = 9.80665
 #: short band delay (designed at 40 m/s), sensitivity windows of 0.5 s, a cheap rule
 COMMON = {'speed_mps': 40.0, 'min_design_speed_mps': 40.0, 'odom_timeout_s': 0.5}
 UNCERTAINTY = {'rule': 'pem3', 'order': 1, 'window_length': 0.5, 'n_mc': 256,
@@ -68,26 +66,6 @@ odoms = st.lists(st.tuples(st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 
                            st.booleans()), max_size=4)
 
 
-def imu(sec: int, nsec: int, frame: str, acc: tuple, cov: list) -> Any:
-    from sensor_msgs.msg import Imu
-
-    m = Imu()
-    m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id = sec, nsec, frame
-    m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = acc
-    m.linear_acceleration_covariance = np.asarray(cov, float)
-    m.orientation_covariance[0] = -1.0
-    return m
-
-
-def odometry(sec: int, nsec: int, speed: float) -> Any:
-    from nav_msgs.msg import Odometry
-
-    m = Odometry()
-    m.header.stamp.sec, m.header.stamp.nanosec = sec, nsec
-    m.twist.twist.linear.x = speed
-    return m
-
-
 class Clock:
     """The clean stream's next stamp (ns) and a seeded accelerometer."""
 
@@ -101,12 +79,12 @@ class Clock:
         stamps = self.next_ns + np.arange(n) * 1_000_000
         self.next_ns = int(stamps[-1]) + step * 1_000_000 if n else self.next_ns
         acc = G + 0.2 * self.rng.standard_normal(n)
-        msgs = [imu(*divmod(int(t), NS), 'imu_link', (0.0, 0.0, a), [-1.0] + [0.0] * 8)
+        msgs = [imu_msg(*divmod(int(t), NS), 'imu_link', (0.0, 0.0, a), [-1.0] + [0.0] * 8)
                 for t, a in zip(stamps.tolist(), acc.tolist(), strict=True)]
         for where, fields in bad:
-            msgs.insert(int(where * len(msgs)), imu(*fields))
+            msgs.insert(int(where * len(msgs)), imu_msg(*fields))
         raws = serialized(msgs)
-        valid = serialized([imu(1, 0, 'imu_link', (0.0, 0.0, G), [0.0] * 9)])[0]
+        valid = serialized([imu_msg(1, 0, 'imu_link', (0.0, 0.0, G), [0.0] * 9)])[0]
         for where, kind in junk:
             data = kind if isinstance(kind, bytes) else valid[:kind[1]] \
                 if kind[0] == 'cut' else kind[1] + valid[2:]
@@ -117,8 +95,8 @@ class Clock:
     def odom(self, rows: list) -> list[bytes]:
         """Serialized odometry: fuzzed stamps, or (flag) stamped at the stream's clock; one
         message cut short per batch."""
-        raws = serialized([odometry(*divmod(self.next_ns, NS), v) if at_clock else
-                           odometry(s, ns, v) for s, ns, v, at_clock in rows])
+        raws = serialized([odometry_msg(*divmod(self.next_ns, NS), v) if at_clock else
+                           odometry_msg(s, ns, v) for s, ns, v, at_clock in rows])
         return [*raws, raws[0][:40]] if raws else raws
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 import signal
-import threading
 import time
 
 import numpy as np
 import pytest
+from ros_helpers import Collector, stamp_ns
 import yaml
 
 from railgsa_ros.scenario import run_scenario
@@ -32,28 +32,19 @@ class Recorder:
         from railgsa_ros.nodes.qos import output_qos, sensor_qos
 
         self.node = Node('recorder', context=ros_context)
-        self.lock = threading.Lock()
-        self.got: dict[str, list] = {'imu': [], 'odom': [], 'truth': []}
-        for key, (msgtype, topic, qos) in {
-                'imu': (Imu, 'imu/data', sensor_qos()),
-                'odom': (Odometry, 'odom', output_qos()),
-                'truth': (PointStamped, 'track/irregularity_truth', output_qos())}.items():
-            self.node.create_subscription(msgtype, topic, self._keep(key), qos)
-
-    def _keep(self, key: str):
-        def callback(msg: object) -> None:
-            with self.lock:
-                self.got[key].append((time.monotonic(), msg))
-        return callback
+        self.got = {key: Collector(self.node, msgtype, topic, qos,
+                                   lambda m: (time.monotonic(), m))
+                    for key, (msgtype, topic, qos) in {
+                        'imu': (Imu, 'imu/data', sensor_qos()),
+                        'odom': (Odometry, 'odom', output_qos()),
+                        'truth': (PointStamped, 'track/irregularity_truth', output_qos())}.items()}
 
     def stamps(self, key: str) -> np.ndarray:
-        with self.lock:
-            return np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-                             for _, m in self.got[key]], dtype=np.int64)
+        return np.array([stamp_ns(m.header) for _, m in self.got[key].snapshot()],
+                        dtype=np.int64)
 
     def count(self, key: str) -> int:
-        with self.lock:
-            return len(self.got[key])
+        return len(self.got[key])
 
 
 def sim_node(ros_context: object, **overrides: object):
@@ -78,8 +69,7 @@ def test_publishes_the_offline_run_at_the_configured_rate(ros_context, spin, wai
     assert wait_for(lambda: rec.count('truth') == n and rec.count('imu') >= n - 2, 5.0)
     # Rate: paced by the clock. No sample arrives before it is due (late is possible on a loaded
     # machine, early is not), and the whole run takes about its own duration.
-    with rec.lock:
-        arrivals = np.array([t for t, _ in rec.got['truth']])
+    arrivals = np.array([t for t, _ in rec.got['truth'].snapshot()])
     due = (offline.stamps_ns - offline.stamps_ns[0]) / 1e9
     assert np.all(arrivals - arrivals[0] >= due - 0.1)
     assert due[-1] - 0.1 <= arrivals[-1] - arrivals[0] <= due[-1] + 1.5
@@ -87,9 +77,8 @@ def test_publishes_the_offline_run_at_the_configured_rate(ros_context, spin, wai
     truth = rec.stamps('truth')
     np.testing.assert_array_equal(truth - truth[0], offline.stamps_ns - offline.stamps_ns[0])
     assert node.offset_ns == truth[0] - offline.stamps_ns[0]
-    with rec.lock:
-        z = np.array([m.point.z for _, m in rec.got['truth']])
-        imu = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for _, m in rec.got['imu']}
+    z = np.array([m.point.z for _, m in rec.got['truth'].snapshot()])
+    imu = {stamp_ns(m.header): m for _, m in rec.got['imu'].snapshot()}
     np.testing.assert_array_equal(z, offline.truth_u_m)
     index = {int(s): k for k, s in enumerate(offline.stamps_ns + node.offset_ns)}
     for stamp, msg in imu.items():

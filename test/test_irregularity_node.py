@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from ros_helpers import T0_NS, Collector, G, imu_msg, imu_msgs, odometry, serialized, stamp_ns
 import yaml
 
 pytestmark = pytest.mark.ros
@@ -22,8 +23,6 @@ PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0}
 #: reader and writer histories hold a whole test run (these tests are about decisions; the
 #: transport at the default depths is test_no_lost_outputs.py's)
 HOLD = {'idle_flush_s': 3600.0, 'imu_qos_depth': 20_000, 'output_qos_depth': 20_000}
-T0_NS = 1_000_000_000  # scenario stamps start at 0, which is not a valid header stamp
-G = 9.80665
 
 
 @pytest.fixture(scope='module')
@@ -33,34 +32,6 @@ def run() -> Any:
 
     return run_scenario('german-low', speed_mps=40.0, duration_s=6.0, rate_hz=1000.0,
                         sensor='ideal', seed=1)
-
-
-def imu_msgs(stamps_ns: np.ndarray, accel_z: np.ndarray, frame: str = 'imu_link',
-             variance: float | None = None, absent: bool = False) -> list:
-    """Imu messages; covariance all zeros (REP 145 'unknown') unless ``variance`` (diagonal),
-    ``absent``: -1 in element 0 (REP 145: no acceleration estimate)."""
-    from sensor_msgs.msg import Imu
-
-    msgs = []
-    for stamp, a in zip(stamps_ns.tolist(), np.asarray(accel_z, float).tolist(), strict=True):
-        m = Imu()
-        m.header.stamp.sec, m.header.stamp.nanosec = divmod(int(stamp), 1_000_000_000)
-        m.header.frame_id = frame
-        m.linear_acceleration.z = a
-        m.orientation_covariance[0] = -1.0
-        if variance is not None:
-            m.linear_acceleration_covariance[0::4] = variance
-        if absent:
-            m.linear_acceleration_covariance[0] = -1.0
-        msgs.append(m)
-    return msgs
-
-
-def serialized(msgs: list) -> list[bytes]:
-    """Messages as the nodes' raw subscriptions receive them (``process`` takes bytes)."""
-    from rclpy.serialization import serialize_message
-
-    return [serialize_message(m) for m in msgs]
 
 
 def _policy(params: dict[str, Any], noise_variance: float | None = None,
@@ -121,11 +92,11 @@ class Rig:
         self.node = spin(IrregularityNode(context=ros_context, parameter_overrides=overrides))
         self.test = Node('irregularity_test', context=ros_context)
         self.lock = threading.Lock()
-        self.out: list[tuple[int, float, float, str]] = []
-        self.quality: list[int] = []  # point.y of each output
+        # (stamp, point.x, point.z, frame, point.y) of each output
+        self.out = Collector(self.test, PointStamped, 'track/irregularity', output_qos(20_000),
+                             lambda m: (stamp_ns(m.header), m.point.x, m.point.z,
+                                        m.header.frame_id, int(m.point.y)))  # a whole run
         self.diag: list[dict[str, tuple[bytes, str, dict[str, str]]]] = []
-        self.test.create_subscription(PointStamped, 'track/irregularity', self._on_out,
-                                      output_qos(20_000))  # holds a whole test run
         self.test.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.imu = self.test.create_publisher(Imu, 'imu/data', sensor_qos())
         self.odom = self.test.create_publisher(Odometry, 'odom', output_qos(10))
@@ -134,11 +105,10 @@ class Rig:
         assert wait_for(lambda: self.node.count_subscribers('track/irregularity') > 0, 15.0)
         time.sleep(0.2)
 
-    def _on_out(self, msg: Any) -> None:
-        with self.lock:
-            self.out.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                             msg.point.x, msg.point.z, msg.header.frame_id))
-            self.quality.append(int(msg.point.y))
+    @property
+    def quality(self) -> list[int]:
+        """point.y of each output so far."""
+        return [row[4] for row in self.out.snapshot()]
 
     def _on_diag(self, msg: Any) -> None:
         statuses = {s.name.split(': ', 1)[1]: (s.level, s.message,
@@ -161,8 +131,7 @@ class Rig:
             (len(self.out), count, self.node.counters().get('published'),
              self.node.counters())
         time.sleep(0.1)
-        with self.lock:
-            stamps, x, z, frames = zip(*self.out, strict=True)
+        stamps, x, z, frames, _ = zip(*self.out.snapshot(), strict=True)
         return np.array(stamps, np.int64), np.array(x), np.array(z), frames
 
     def diagnostics(self, pred: Callable[[dict], bool], timeout: float = 10.0) -> dict:
@@ -402,24 +371,17 @@ def test_gap_reset_or_bridged_without_a_spike(policy: str, run: Any, rig: Callab
 
 def test_speed_from_odometry_invalid_and_a_diagnostic_until_known(run: Any,
                                                                  rig: Callable) -> None:
-    from nav_msgs.msg import Odometry
-
     stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
     r = rig(use_odom=True, speed_mps=25.0, odom_timeout_s=0.5)
     r.publish(imu_msgs(stamps[:1000], acc[:1000]))
     d = r.diagnostics(lambda d: d['input checks'][0] == b'\x01')
     assert 'no odometry' in d['input checks'][1] and 'INVALID' in d['input checks'][1]
 
-    def odom(stamp: int) -> Odometry:
-        msg = Odometry()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp), 10**9)
-        msg.twist.twist.linear.x = 40.0
-        return msg
     assert r.wait_for(lambda: r.odom.get_subscription_count() > 0, 10.0)
     policy = _policy({'use_odom': True, 'speed_mps': 25.0, 'odom_timeout_s': 0.5})
     parts = [policy.imu(stamps[:1000], _accel(acc[:1000]))]
     for k in range(1000, len(stamps), 100):  # odometry at 10 Hz from sample 1000 on
-        r.odom.publish(odom(stamps[k]))
+        r.odom.publish(odometry(stamps[k], 40.0))
         assert r.wait_for(lambda n=k: r.node.counters().get('odom_received', 0)
                           == (n - 1000) // 100 + 1, 5.0)
         r.publish(imu_msgs(stamps[k:k + 100], acc[k:k + 100]))
@@ -483,7 +445,6 @@ def test_fuzzed_messages_never_raise_and_nan_only_when_invalid(ros_context: Any)
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
     from rclpy.parameter import Parameter
-    from sensor_msgs.msg import Imu
 
     from railgsa_ros.nodes.irregularity_node import IrregularityNode
 
@@ -498,13 +459,8 @@ def test_fuzzed_messages_never_raise_and_nan_only_when_invalid(ros_context: Any)
     @settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
     @given(st.lists(message, min_size=1, max_size=12))
     def check(rows: list[tuple]) -> None:
-        msgs = []
-        for sec, nsec, frame, z, cov0, cov8 in rows:
-            m = Imu()
-            m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id = sec, nsec, frame
-            m.linear_acceleration.z = z
-            m.linear_acceleration_covariance[0], m.linear_acceleration_covariance[8] = cov0, cov8
-            msgs.append(m)
+        msgs = [imu_msg(sec, nsec, frame, (0.0, 0.0, z), [cov0] + [0.0] * 7 + [cov8])
+                for sec, nsec, frame, z, cov0, cov8 in rows]
         out = node.process(serialized(msgs))  # u finite except where INVALID (NaN)
         assert out is None or np.all(np.isfinite(out.u_m) == (out.quality != 2))
 
@@ -515,14 +471,6 @@ def test_fuzzed_messages_never_raise_and_nan_only_when_invalid(ros_context: Any)
         'wrong_frame')) + node.policy.held  # each message once (or still held for the noise)
     assert totals.get('internal_error', 0) == 0 and totals.get('published', 0) > 0
     node.destroy_node()
-
-
-def imu_msgs3(stamps_ns: np.ndarray, accel: np.ndarray) -> list:
-    """Imu messages carrying all three accelerometer axes (covariance all zeros: unknown)."""
-    msgs = imu_msgs(stamps_ns, accel[:, 2])
-    for m, (ax, ay, _) in zip(msgs, np.asarray(accel, float).tolist(), strict=True):
-        m.linear_acceleration.x, m.linear_acceleration.y = ax, ay
-    return msgs
 
 
 def _rotated_to_minus_y(run: Any) -> np.ndarray:
@@ -542,7 +490,7 @@ def test_gravity_on_minus_y_live_every_output_invalid_and_a_finding_naming_the_a
     ref = _policy({}).imu(stamps, acc, None, np.zeros((len(stamps), 9)))
     assert len(ref) > 0 and np.all(ref.quality == 2)
     r = rig()
-    r.publish(imu_msgs3(stamps, acc))
+    r.publish(imu_msgs(stamps, acc))
     got_t, _, got_z, _ = r.outputs(len(ref))
     np.testing.assert_array_equal(got_t, ref.stamps_ns)
     assert r.quality[:len(ref)] == [2] * len(ref)  # every published sample INVALID
@@ -585,8 +533,6 @@ def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
     INVALID and DEGRADED outputs; /diagnostics' valid/degraded/invalid = the point.y codes."""
     from collections import Counter
 
-    from nav_msgs.msg import Odometry
-
     from railgsa_ros.inverse.pipeline import Output
 
     stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
@@ -601,10 +547,7 @@ def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
     r = rig(**params)
     assert r.wait_for(lambda: r.odom.get_subscription_count() > 0, 10.0)
     for n, (k, v) in enumerate(zip(odom_k.tolist(), speeds.tolist(), strict=True)):
-        msg = Odometry()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamps[k]), 10**9)
-        msg.twist.twist.linear.x = v
-        r.odom.publish(msg)
+        r.odom.publish(odometry(stamps[k], v))
         assert r.wait_for(lambda n=n: r.node.counters().get('odom_received', 0) == n + 1, 5.0)
     r.publish(imu_msgs(stamps, acc))
     r.outputs(len(ref), timeout=60.0)

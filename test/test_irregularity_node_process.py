@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline_flushed
+from ros_helpers import T0_NS, imu_msgs
+from test_irregularity_node import PARAMS, offline_flushed
 
 pytestmark = pytest.mark.ros
 

@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import PARAMS, T0_NS, imu_msgs, offline, serialized
+from ros_helpers import T0_NS, imu_msgs, serialized
+from test_irregularity_node import PARAMS, offline
 from test_irregularity_node import run as run
 
 pytestmark = pytest.mark.ros

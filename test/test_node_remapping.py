@@ -12,11 +12,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import imu_msgs
+from ros_helpers import NS, Collector, imu_msgs, point_row, vector_row
 
 pytestmark = pytest.mark.ros
 
-NS = 1_000_000_000
 #: no band filter: every accepted sample comes out at once (short tests); a cheap rule
 PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0,
           'method': 'feedback', 'band': 'none', 'rule': 'pem3', 'order': 1,
@@ -115,24 +114,15 @@ def test_two_trains_side_by_side_each_pair_reads_only_its_own_imu(
                    args=['--ros-args', '-r', f'__ns:={train}'])
         contexts.append(ctx)
         nodes += [make_node(n, ctx) for n in sorted(NODES)]
-    got: dict[tuple[str, str], list[tuple[int, float]]] = {}  # (stamp, x)
-    lock = threading.Lock()
-
-    def record(key: tuple[str, str], field: str) -> Callable[[Any], None]:
-        got[key] = []
-
-        def callback(msg: Any) -> None:
-            with lock:
-                got[key].append((msg.header.stamp.sec * NS + msg.header.stamp.nanosec,
-                                 getattr(msg, field).x))
-        return callback
-
+    got: dict[tuple[str, str], Collector] = {}  # rows (stamp, x, y, z)
     pubs = {}
     for train in trains:
-        observer.create_subscription(PointStamped, f'{train}/track/irregularity',
-                                     record((train, 'irregularity'), 'point'), output_qos())
-        observer.create_subscription(Vector3Stamped, f'{train}/track/irregularity_band',
-                                     record((train, 'band'), 'vector'), output_qos())
+        got[train, 'irregularity'] = Collector(observer, PointStamped,
+                                               f'{train}/track/irregularity', output_qos(),
+                                               point_row)
+        got[train, 'band'] = Collector(observer, Vector3Stamped,
+                                       f'{train}/track/irregularity_band', output_qos(),
+                                       vector_row)
         pubs[train] = observer.create_publisher(Imu, f'{train}/imu/data', sensor_qos())
     spinners = []
     for ctx, pair in zip(contexts, (nodes[:2], nodes[2:]), strict=True):
@@ -165,12 +155,12 @@ def test_two_trains_side_by_side_each_pair_reads_only_its_own_imu(
             for kind in ('irregularity', 'band'):
                 assert wait_for(lambda k=(train, kind), s=stamps: len(got[k]) >= s.size, 15.0), \
                     (train, kind, len(got[(train, kind)]))
-        with lock:
-            for train, (stamps, _) in streams.items():
-                for kind in ('irregularity', 'band'):
-                    # exactly this train's stamps, each once, in order: nothing of the other
-                    # train's (a pair reading both topics would output both stamp ranges)
-                    np.testing.assert_array_equal([t for t, _ in got[(train, kind)]], stamps)
+        for train, (stamps, _) in streams.items():
+            for kind in ('irregularity', 'band'):
+                # exactly this train's stamps, each once, in order: nothing of the other
+                # train's (a pair reading both topics would output both stamp ranges)
+                np.testing.assert_array_equal([row[0] for row in got[(train, kind)].snapshot()],
+                                              stamps)
     finally:
         for ex, thread in spinners:
             ex.shutdown(timeout_sec=2.0)

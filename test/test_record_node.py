@@ -18,6 +18,7 @@ from typing import Any
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import pytest
+from ros_helpers import imu_msg
 from rosbags.highlevel import AnyReader
 
 from railgsa_ros.bag.messages import typestore
@@ -51,10 +52,7 @@ def publish_known(ros_context: Any, wait_for: Any, recorder_alive: Any) -> tuple
         time.sleep(0.3)  # let the recorder's reader match the writers too
         imus, notes = [], []
         for i in range(N_IMU):
-            msg = Imu()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + i // 1000, i % 1000 * 10**6
-            msg.header.frame_id = 'imu_link'
-            msg.linear_acceleration.z = 9.81 + i * 1e-3
+            msg = imu_msg(100 + i // 1000, i % 1000 * 10**6, acc=(0.0, 0.0, 9.81 + i * 1e-3))
             imu_pub.publish(msg)
             imus.append(msg)
             if i % 100 == 0:
@@ -251,10 +249,7 @@ def test_sigkill_loses_at_most_the_last_second_after_recover(tmp_path: Path, ros
         start = time.monotonic()
         i = 0
         while time.monotonic() - start < 3.5:  # about 1 kHz for 3.5 s
-            msg = Imu()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + i // 1000, i % 1000 * 10**6
-            msg.header.frame_id = 'imu_link'
-            msg.linear_acceleration.z = 9.81 + i * 1e-4
+            msg = imu_msg(100 + i // 1000, i % 1000 * 10**6, acc=(0.0, 0.0, 9.81 + i * 1e-4))
             pub.publish(msg)
             sent.append((time.monotonic(), serialize_message(msg)))
             i += 1

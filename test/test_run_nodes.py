@@ -13,6 +13,7 @@ import time
 from typing import Any
 
 import pytest
+from ros_helpers import imu_msgs
 
 from railgsa_ros.cli.main import main
 
@@ -154,11 +155,7 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
         time.sleep(1.0)  # the readers' side of the match (a BEST_EFFORT reader drops before)
         stamps = 1_700_000_000 * 10**9 + np.arange(600) * 1_000_000  # < the band delay
         accel = 9.80665 + 0.05 * np.random.default_rng(0).standard_normal(stamps.size)
-        for k, (stamp, a) in enumerate(zip(stamps.tolist(), accel.tolist(), strict=True)):
-            msg = Imu()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
-            msg.header.frame_id = 'imu_link'
-            msg.linear_acceleration.z = a
+        for k, msg in enumerate(imu_msgs(stamps, accel)):
             imu.publish(msg)
             if k % 50 == 49:
                 time.sleep(0.05)

@@ -12,7 +12,16 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_irregularity_node import serialized
+from ros_helpers import (
+    T0_NS,
+    Collector,
+    header_stamp,
+    imu_msgs,
+    odometry,
+    serialized,
+    stamp_ns,
+    vector_row,
+)
 
 pytestmark = pytest.mark.ros
 
@@ -20,8 +29,6 @@ pytestmark = pytest.mark.ros
 PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0,
           'window_length': 1.0, 'n_mc': 4096, 'process_period_s': 0.02}
 DEPTH = 5000  # listener history: a whole run, so that no burst of outputs overwrites another
-T0_NS = 1_000_000_000  # header stamps must be positive
-NS = 1_000_000_000
 
 
 @pytest.fixture(scope='module')
@@ -31,21 +38,6 @@ def run() -> Any:
 
     return run_scenario('german-low', speed_mps=40.0, duration_s=4.0, rate_hz=1000.0,
                         sensor='ideal', seed=2)
-
-
-def imu_messages(stamps_ns: np.ndarray, accel_z: np.ndarray) -> list:
-    """sensor_msgs/Imu in imu_link, gravity included, covariance unknown (all zero; REP 145's
-    -1 would mark the acceleration itself absent)."""
-    from sensor_msgs.msg import Imu
-
-    msgs = []
-    for stamp, a in zip(stamps_ns.tolist(), accel_z.tolist(), strict=True):
-        m = Imu()
-        m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, NS)
-        m.header.frame_id = 'imu_link'
-        m.linear_acceleration.z = a
-        msgs.append(m)
-    return msgs
 
 
 def offline_reference(stamps_ns: np.ndarray, accel_z: np.ndarray,
@@ -85,16 +77,15 @@ class Listener:
 
         self.node = Node('uncertainty_test', context=ros_context)
         self.lock = threading.Lock()
-        self.band: list[tuple[int, float, float, float]] = []
-        self.irregularity: list[int] = []
-        self.sensitivity: list[Any] = []
+        self.band = Collector(self.node, Vector3Stamped, 'track/irregularity_band',
+                              output_qos(DEPTH), vector_row)
+        self.irregularity = Collector(self.node, PointStamped, 'track/irregularity',
+                                      output_qos(DEPTH), header_stamp)
+        self.sensitivity = Collector(self.node, DiagnosticArray, 'track/sensitivity',
+                                     output_qos(100))
         self.diag: list[dict] = []
         self._name = node_name
-        sub = self.node.create_subscription
-        sub(Vector3Stamped, 'track/irregularity_band', self._on_band, output_qos(DEPTH))
-        sub(PointStamped, 'track/irregularity', self._on_irregularity, output_qos(DEPTH))
-        sub(DiagnosticArray, 'track/sensitivity', self._on_sensitivity, output_qos(100))
-        sub(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.imu = self.node.create_publisher(Imu, 'imu/data', sensor_qos())
         # its own executor thread: the node under test never delays the reading of its outputs
         self.executor = SingleThreadedExecutor(context=ros_context)
@@ -106,22 +97,6 @@ class Listener:
         self.executor.shutdown(timeout_sec=2.0)
         self.thread.join(5.0)
         self.node.destroy_node()
-
-    @staticmethod
-    def _ns(header: Any) -> int:
-        return header.stamp.sec * NS + header.stamp.nanosec
-
-    def _on_band(self, msg: Any) -> None:
-        with self.lock:
-            self.band.append((self._ns(msg.header), msg.vector.x, msg.vector.y, msg.vector.z))
-
-    def _on_irregularity(self, msg: Any) -> None:
-        with self.lock:
-            self.irregularity.append(self._ns(msg.header))
-
-    def _on_sensitivity(self, msg: Any) -> None:
-        with self.lock:
-            self.sensitivity.append(msg)
 
     def _on_diag(self, msg: Any) -> None:
         prefix = f'{self._name}: '
@@ -182,7 +157,7 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
     from railgsa_ros.uncertainty import UncertaintyStream
 
     stamps, acc = run.stamps_ns + T0_NS, run.accel[:, 2]
-    msgs = imu_messages(stamps, acc)
+    msgs = imu_msgs(stamps, acc)
     msgs[500].linear_acceleration.z = float('nan')  # rejected: nan
     msgs[900].header.frame_id = ''                  # malformed
     good = np.setdiff1d(np.arange(stamps.size), [500, 900])
@@ -197,10 +172,10 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
                                                                  node.counters())
     assert wait_for(lambda: len(listener.sensitivity) >= len(live.windows), 10.0)
     time.sleep(0.2)
-    with listener.lock:
-        got = np.array(listener.band)
-        got_t = np.array([b[0] for b in listener.band], np.int64)  # float64 rounds 1.7e18 ns
-        arrays = list(listener.sensitivity)
+    rows = listener.band.snapshot()
+    got = np.array(rows)
+    got_t = np.array([b[0] for b in rows], np.int64)  # float64 rounds 1.7e18 ns
+    arrays = listener.sensitivity.snapshot()
     np.testing.assert_array_equal(got_t, ref.stamps_ns[:count])
     scale = np.nanmax(np.abs(ref.mean_m))
     for col, name in enumerate(('lower_m', 'mean_m', 'upper_m'), start=1):
@@ -221,7 +196,7 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
         s = _values(summary)
         assert s['qoi'] == rec.qoi and s['rule'] == 'pem5' and s['model_evaluations'] == '19'
         assert int(s['first_stamp_ns']) == rec.first_stamp_ns
-        assert int(s['last_stamp_ns']) == rec.last_stamp_ns == listener._ns(msg.header)
+        assert int(s['last_stamp_ns']) == rec.last_stamp_ns == stamp_ns(msg.header)
         assert float(s['chainage_end_m']) == pytest.approx(rec.chainage_end_m, rel=1e-5)
     diag: list[dict] = []
 
@@ -260,9 +235,9 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
         player.destroy_node()
     count = recorded.stamps_ns.size - node.stream.delay_samples  # live: no flush
     assert wait_for(lambda: len(listener.band) >= count, 30.0), (len(listener.band), count)
-    with listener.lock:
-        got = np.array(listener.band)
-        got_t = np.array([b[0] for b in listener.band], np.int64)
+    rows = listener.band.snapshot()
+    got = np.array(rows)
+    got_t = np.array([b[0] for b in rows], np.int64)
     np.testing.assert_array_equal(got_t, ref.stamps_ns[:count])
     np.testing.assert_allclose(got[:, 1:], np.stack([ref.lower_m, ref.mean_m, ref.upper_m],
                                                     axis=1)[:count],
@@ -271,7 +246,7 @@ def test_replayed_bag_gives_the_offline_bands(run: Any, rig: Callable, ros_conte
 
 def test_internal_error_is_counted_and_the_stream_rebuilt(run: Any, rig: Callable) -> None:
     node, _ = rig()
-    msgs = imu_messages(run.stamps_ns[:100] + T0_NS, run.accel[:100, 2])
+    msgs = imu_msgs(run.stamps_ns[:100] + T0_NS, run.accel[:100, 2])
     policy = node.stream.policy
     calls = []
 
@@ -283,7 +258,7 @@ def test_internal_error_is_counted_and_the_stream_rebuilt(run: Any, rig: Callabl
     policy.imu = fail_once
     assert node.process(serialized(msgs)) is None
     assert node.counters()['internal_error'] == 1 and node.counters()['rebuild'] == 1
-    node.process(serialized(imu_messages(run.stamps_ns[100:3000] + T0_NS,
+    node.process(serialized(imu_msgs(run.stamps_ns[100:3000] + T0_NS,
                                          run.accel[100:3000, 2])))
     assert node.counters()['published'] > 0
 
@@ -292,7 +267,6 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
                                                            wait_for: Callable) -> None:
     """The stream's policy takes the node's odometry and the IMU-reported variance: equal to a
     stream with the same odometry and that variance fixed."""
-    from nav_msgs.msg import Odometry
 
     from railgsa_ros.inverse.policy import PolicyOptions
     from railgsa_ros.uncertainty import UncertaintyStream
@@ -301,17 +275,13 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
                          odom_timeout_s=10.0)
     stamps, acc = run.stamps_ns[:2000] + T0_NS, run.accel[:2000, 2]
 
-    def odom(stamp: int) -> Odometry:
-        msg = Odometry()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp), NS)
-        msg.twist.twist.linear.x = 25.0
-        return msg
-    msgs = imu_messages(stamps, acc)
+    msgs = imu_msgs(stamps, acc)
     for m in msgs:
         m.linear_acceleration_covariance[0] = 0.0
         m.linear_acceleration_covariance[8] = 4e-6
-    node.process(serialized(msgs), serialized([odom(stamps[0])]))  # odometry first
-    node.process([], serialized([odom(stamps[-1] + 1)]))  # newer than every sample: all decided
+    node.process(serialized(msgs), serialized([odometry(stamps[0], 25.0)]))  # odometry first
+    # newer than every sample: all decided
+    node.process([], serialized([odometry(stamps[-1] + 1, 25.0)]))
     config = node_config().with_(qoi='', inversion=node_config().inversion.with_(
         method='kalman', band='none'))
     ref = UncertaintyStream(config, noise_variance=4e-6,
@@ -323,9 +293,9 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     want = want[0].concat(want)
     assert len(want) == len(stamps)  # band none: every sample out
     assert wait_for(lambda: len(listener.band) >= len(want), 30.0)
-    with listener.lock:
-        got_t = np.array([b[0] for b in listener.band], np.int64)
-        got_mean = np.array([b[2] for b in listener.band])
+    rows = listener.band.snapshot()
+    got_t = np.array([b[0] for b in rows], np.int64)
+    got_mean = np.array([b[2] for b in rows])
     np.testing.assert_array_equal(got_t, want.stamps_ns)
     np.testing.assert_allclose(got_mean, want.mean_m, rtol=1e-12, atol=0)
 
@@ -369,13 +339,12 @@ def test_killing_the_uncertainty_node_leaves_irregularity_node_unaffected(
     assert wait_for(lambda: len(listener.diag) > 0, 30.0), uncertainty.stop().stderr
     time.sleep(1.0)
     stamps = run.stamps_ns + T0_NS
-    msgs = imu_messages(stamps, run.accel[:, 2])
+    msgs = imu_msgs(stamps, run.accel[:, 2])
     half = 2600  # past the band delay of both nodes (about 1.8 s)
     listener.publish(msgs[:half], rate_hz=1000.0)
     assert wait_for(lambda: len(listener.band) > 0, 15.0), uncertainty.stop().stderr
     uncertainty.stop(signal.SIGKILL)
-    with listener.lock:
-        band = np.array([b[0] for b in listener.band], np.int64)
+    band = np.array([b[0] for b in listener.band.snapshot()], np.int64)
     # the irregularity stamps, contiguous from the node's first sample (discovery may let the
     # node miss the first BEST_EFFORT messages after it reports: that is not what is tested)
     first = int(np.searchsorted(stamps, band[0]))
@@ -384,8 +353,7 @@ def test_killing_the_uncertainty_node_leaves_irregularity_node_unaffected(
     listener.publish(msgs[half:], rate_hz=1000.0)
     assert wait_for(lambda: len(listener.irregularity) >= before + len(msgs) - half, 20.0)
     time.sleep(0.2)
-    with listener.lock:
-        got = np.array(listener.irregularity, np.int64)
+    got = np.array(listener.irregularity.snapshot(), np.int64)
     # every sample the irregularity node could emit arrived, in order, none missing
     first = int(np.searchsorted(stamps, got[0]))
     np.testing.assert_array_equal(got, stamps[first:first + got.size])
