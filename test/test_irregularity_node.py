@@ -11,7 +11,17 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import T0_NS, Collector, G, imu_msg, imu_msgs, odometry, serialized, stamp_ns
+from ros_helpers import (
+    T0_NS,
+    Collector,
+    G,
+    imu_msg,
+    imu_msgs,
+    odometry,
+    point_row,
+    serialized,
+    stamp_ns,
+)
 import yaml
 
 pytestmark = pytest.mark.ros
@@ -561,7 +571,6 @@ def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
     np.testing.assert_array_equal(r.quality[:len(ref)], ref.quality)
 
 
-
 def test_grid_topic_equals_invert_grid(rig: Callable, tmp_path: Path) -> None:
     """publish_grid: track/irregularity_grid through the node (ended by the idle flush) equals
     ``railgsa invert --grid 0.25`` on a bag of the same samples (12 s at 40 m/s, 500 Hz: the
@@ -590,15 +599,14 @@ def test_grid_topic_equals_invert_grid(rig: Callable, tmp_path: Path) -> None:
     want = np.array([[float(r[1]), float(r[3]), float(r[2])] for r in rows])  # x, y, z
 
     r = rig(publish_grid=True, idle_flush_s=0.5, rate_hz=500.0)
-    got: list[tuple[int, float, float, float]] = []
-    r.test.create_subscription(PointStamped, 'track/irregularity_grid', lambda m: got.append((
-        m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, m.point.x, m.point.y,
-        m.point.z)), output_qos(20_000))
+    grid = Collector(r.test, PointStamped, 'track/irregularity_grid', output_qos(20_000),
+                     point_row)
     assert r.wait_for(lambda: r.node.count_subscribers('track/irregularity_grid') > 0, 15.0)
     time.sleep(0.2)
     r.publish(imu_msgs(run.stamps_ns + T0_NS, run.accel[:, 2], variance=variance))
-    assert r.wait_for(lambda: len(got) >= len(rows), 30.0), (len(got), len(rows))
+    assert r.wait_for(lambda: len(grid) >= len(rows), 30.0), (len(grid), len(rows))
     time.sleep(0.2)
+    got = grid.snapshot()
     stamps = np.array([g[0] for g in got], np.int64)
     values = np.array([g[1:] for g in got])
     assert len(rows) > 500 and (want[:, 1] == 0).any()  # VALID points exist

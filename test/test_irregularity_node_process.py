@@ -6,13 +6,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 import signal
-import threading
 import time
 from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import T0_NS, imu_msgs
+from ros_helpers import T0_NS, Collector, imu_msgs, stamp_ns
 from test_irregularity_node import PARAMS, offline_flushed
 
 pytestmark = pytest.mark.ros
@@ -43,14 +42,8 @@ def test_ten_seconds_at_1khz_without_loss_then_sigint(ros_context: Any, spin: Ca
 
     proc = start_node(MODULE, ROS_ARGS)
     test = spin(Node('irregularity_process_test', context=ros_context))
-    got: list[tuple[int, float]] = []
-    lock = threading.Lock()
-
-    def keep(msg: PointStamped) -> None:
-        with lock:
-            got.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                        msg.point.z))
-    test.create_subscription(PointStamped, 'track/irregularity', keep, output_qos(20_000))
+    got = Collector(test, PointStamped, 'track/irregularity', output_qos(20_000),
+                    lambda m: (stamp_ns(m.header), m.point.z))
     pub = test.create_publisher(Imu, 'imu/data', sensor_qos())
     assert wait_for(lambda: pub.get_subscription_count() > 0, 90.0), proc.stop().stderr
     assert wait_for(lambda: test.count_publishers('track/irregularity') > 0, 15.0)
@@ -64,9 +57,9 @@ def test_ten_seconds_at_1khz_without_loss_then_sigint(ros_context: Any, spin: Ca
     assert wait_for(lambda: len(got) >= n, 30.0), (len(got), n)
     time.sleep(0.2)
     result = proc.stop(signal.SIGINT)
-    with lock:  # every sample exactly once, none lost, the values of the offline flush
-        np.testing.assert_array_equal(np.array([g[0] for g in got], np.int64), ref_t)
-        np.testing.assert_array_equal(np.array([g[1] for g in got]), ref_z)
+    rows = got.snapshot()  # every sample exactly once, none lost, the values of the offline flush
+    np.testing.assert_array_equal(np.array([g[0] for g in rows], np.int64), ref_t)
+    np.testing.assert_array_equal(np.array([g[1] for g in rows]), ref_z)
     assert result.rc == 0, result.stderr
     assert 'Traceback' not in result.stderr, result.stderr
 

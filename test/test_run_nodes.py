@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 import pytest
-from ros_helpers import imu_msgs
+from ros_helpers import Collector, header_stamp, imu_msgs
 
 from railgsa_ros.cli.main import main
 
@@ -132,11 +132,9 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
                              '    idle_flush_s: 0.5\n/**/uncertainty_node:\n  ros__parameters:\n'
                              '    rule: pem3\n    order: 1\n')
     test = Node('run_test', namespace='train1', context=ros_context)
-    got: dict[str, list[int]] = {'u': [], 'band': []}
-    for key, cls, topic in (('u', PointStamped, 'track/irregularity'),
-                            ('band', Vector3Stamped, 'track/irregularity_band')):
-        test.create_subscription(cls, topic, lambda m, k=key: got[k].append(
-            m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), output_qos(5000))
+    got = {key: Collector(test, cls, topic, output_qos(5000), header_stamp)
+           for key, cls, topic in (('u', PointStamped, 'track/irregularity'),
+                                   ('band', Vector3Stamped, 'track/irregularity_band'))}
     imu = test.create_publisher(Imu, 'imu/data', sensor_qos())
     spin(test)
     proc, log = start_run(tmp_path, '--params', str(params), '--namespace', 'train1')
@@ -162,7 +160,7 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
         # idle_flush_s after the last sample both nodes flush: every sample gets its output
         assert wait_for(lambda: min(map(len, got.values())) >= stamps.size, 30.0), \
             {k: len(v) for k, v in got.items()}
-        assert got['u'] == got['band'] == stamps.tolist()
+        assert got['u'].snapshot() == got['band'].snapshot() == stamps.tolist()
         assert [len(ls) for ls in startup_lines(log).values()] == [1, 1], log.read_text()
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(60) == 0, log.read_text()
