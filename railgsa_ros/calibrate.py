@@ -13,6 +13,13 @@ parameters. Gauss-Newton with a Gaussian prior on p (from the uncertainty law: s
 and forward-difference Jacobian columns computed in the same bank run; the posterior (Laplace)
 covariance is (J^T J / s^2 + P0^-1)^-1 with s^2 the residual variance times the residual's
 integrated autocorrelation (the samples of a band-limited residual are not independent).
+
+Model discrepancy (Kennedy-O'Hagan): even the true parameters leave an error the band's terms do
+not hold (e.g. the chainage shift of a drifting sensor clock). ``discrepancy_std`` measures it on
+the same stretch from the band of the calibrated run (posterior law + sensor terms): the mean
+square of (band mean - reference) beyond the band's own mean variance, written to the
+uncertainty file as ``discrepancy_std_m`` and added in variance by every band
+(``uncertainty.terms``).
 """
 
 from __future__ import annotations
@@ -21,12 +28,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import brentq
+from scipy.stats import norm
 
 from railgsa_ros.errors import InputError
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance
+from railgsa_ros.uncertainty.stream import Band
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
@@ -140,3 +151,32 @@ def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
     return Calibration(tuple(names), mean, cov_p * np.outer(mean, mean), theta, before,
                        float(np.sqrt(np.mean(resid ** 2))), float(np.linalg.cond(info)), corr,
                        int(keep.sum()))
+
+
+def discrepancy_std(band: Band, reference: tuple[np.ndarray, np.ndarray], config: InversionConfig,
+                    quantiles: tuple[float, float]) -> float:
+    """Model-discrepancy std d (m) over the reference stretch (margins left out, INVALID samples
+    skipped; chainage as in ``calibrate``): the maximum-likelihood d of r_i ~ N(0, s_i^2 + d^2),
+    r = band mean - the band-passed reference, s the band's Gaussian-equivalent std
+    (upper - lower) / (z_upper - z_lower) at ``quantiles``. The band's variance is uneven (the
+    delay term is largest at defects), so the moment estimate sqrt(mean r^2 - mean s^2) is
+    dominated by a few wide samples and can say 0 where the band misses most of the others;
+    the likelihood weighs each sample by its own variance. 0 when the band already holds r."""
+    x_ref, u_ref = _reference_band(*reference, config)
+    keep = ((band.chainage_m > x_ref[0] + MARGIN_M) & (band.chainage_m < x_ref[-1] - MARGIN_M)
+            & np.isfinite(band.mean_m) & np.isfinite(band.lower_m) & np.isfinite(band.upper_m))
+    if band.quality is not None:
+        keep &= band.quality != Quality.INVALID
+    if keep.sum() < 100:
+        raise InputError('calibrate: fewer than 100 valid band samples on the reference stretch')
+    # cubic: a linear interpolation of the DX_M grid alone leaves ~1e-6 m at D1's short waves
+    r2 = (band.mean_m[keep] - CubicSpline(x_ref, u_ref)(band.chainage_m[keep])) ** 2
+    s2 = ((band.upper_m[keep] - band.lower_m[keep]) /
+          float(np.diff(norm.ppf(quantiles))[0])) ** 2
+
+    def score(d2: float) -> float:  # d/d(d^2) of the log-likelihood, decreasing near its root
+        return float(np.sum(r2 / (s2 + d2) ** 2 - 1.0 / (s2 + d2)))
+
+    if score(0.0) <= 0.0:
+        return 0.0
+    return float(np.sqrt(brentq(score, 0.0, float(r2.max()))))  # score < 0 beyond max r^2

@@ -6,15 +6,18 @@ import numpy as np
 import pytest
 
 from railgsa_ros.bag.run import write_run
-from railgsa_ros.calibrate import calibrate
+from railgsa_ros.calibrate import calibrate, discrepancy_std
 from railgsa_ros.cli.main import main
+from railgsa_ros.imu import accel_covariance, imu_spec
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import score
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import save_csv
-from railgsa_ros.uncertainty.parameters import load_uncertainty
+from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
+from railgsa_ros.uncertainty.coverage import truth_at
+from railgsa_ros.uncertainty.parameters import load_discrepancy, load_uncertainty
 from railgsa_ros.uq.distributions import Normal
 from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
@@ -59,6 +62,55 @@ def test_calibration_recovers_k_s_and_c_and_the_true_parameter_accuracy(run):
     assert calibrated <= 1.3 * truth < nominal
 
 
+def _posterior_band(run, noise_variance: float | None, discrepancy_m: float = 0.0):
+    """Calibrate on STRETCH, then the 95 % band of the whole run with the posterior law, the
+    band's accelerometer variance (m/s^2)^2 (None: the policy measures it) and
+    ``discrepancy_m``: (band, inversion config, quantiles)."""
+    config = InversionConfig(rate_hz=run.rate_hz)
+    cal = calibrate(run.stamps_ns, run.accel[:, 2], run.speed_mps, _reference(run), config,
+                    NOMINAL, PRIOR)
+    law = {**PRIOR, **{n: Normal(d['mu'], d['sigma'], lower=0.0)
+                       for n, d in cal.uncertainty().items()}}
+    ucfg = UncertaintyConfig(inversion=config, qoi='', discrepancy_std_m=discrepancy_m)
+    band = offline_bands(run.stamps_ns, run.accel, (run.stamps_ns, run.speed_mps), config=ucfg,
+                         vehicle=cal.vehicle(), dists=law,
+                         noise_variance=noise_variance)
+    return band, config, (ucfg.lower_quantile, ucfg.upper_quantile)
+
+
+def _rest_coverage(run, band) -> float:
+    """Share of the rest of the run (published samples, 100 m end margin) whose D1 truth is
+    inside the band."""
+    truth = truth_at(run, band, InversionConfig(rate_hz=run.rate_hz))
+    keep = ((band.chainage_m > REST_M) & (band.chainage_m < band.chainage_m[-1] - 100.0)
+            & (band.quality != Quality.INVALID))
+    hit = (truth[keep] >= band.lower_m[keep]) & (truth[keep] <= band.upper_m[keep])
+    return float(np.mean(hit))
+
+
+def test_discrepancy_makes_the_calibrated_band_hold_the_truth_on_the_rest():
+    """An error source in no band term (the accelerometer 4x noisier than the band is told, no
+    clock drift: a stationary error): the calibrated band misses the truth; the discrepancy
+    measured on the reference stretch brings the rest of the run near the nominal 95 %."""
+    noisy = imu_spec('bmi088', clock_drift_ppm=0.0,
+                     noise_density=4 * imu_spec('bmi088').noise_density)
+    extra = run_scenario('german-low', 30.0, 45.0, None, noisy, seed=1, vehicle=TRUE)
+    told = float(accel_covariance(imu_spec('bmi088')))
+    band, config, quantiles = _posterior_band(extra, told)
+    gap = discrepancy_std(band, _reference(extra), config, quantiles)
+    assert _rest_coverage(extra, band) < 0.8
+    widened, *_ = _posterior_band(extra, told, gap)
+    assert 0.90 <= _rest_coverage(extra, widened) <= 0.99
+
+
+def test_discrepancy_is_zero_on_exact_physics():
+    """Noise-free exact physics and an exact reference: nothing is left beyond the band."""
+    exact = run_scenario('german-low', 30.0, 35.0, None, 'ideal', seed=2, vehicle=TRUE)
+    band, config, quantiles = _posterior_band(exact, None)
+    half = np.nanmean(band.upper_m - band.lower_m) / 2
+    assert discrepancy_std(band, _reference(exact), config, quantiles) <= 0.01 * half
+
+
 def test_k_us_is_not_identifiable(run):
     """Fisher information: adding k_us raises the condition number by orders of magnitude and
     its posterior stays an order of magnitude wider (relative) than those of k_s and c."""
@@ -87,6 +139,7 @@ def test_cli_writes_vehicle_and_uncertainty_files_every_entry_point_reads(run, t
     law = load_uncertainty(unc)
     assert set(law) == {'k_s', 'k_us', 'c'} and law['k_us'] == PRIOR['k_us']
     assert law['k_s'].sigma < 0.25 * PRIOR['k_s'].sigma
+    assert load_discrepancy(unc) > 0.0  # the BMI088 run's uncompensated delay and drift
     assert main(['invert', str(bag), '--vehicle', str(veh), '--csv', str(tmp_path / 'u.csv'),
                  '--bands', '--uncertainty', str(unc)]) == 0
     # a reference that does not belong to the run is refused, not fitted

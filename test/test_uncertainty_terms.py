@@ -116,3 +116,28 @@ def test_small_ensemble_from_the_priors_is_calibrated():
                        levels=(0.95,))
         inside.append(cov.inside[0])
     assert 0.85 <= np.mean(inside) <= 1.0
+
+
+def test_discrepancy_adds_in_variance_and_comes_from_the_uncertainty_file(tmp_path):
+    """discrepancy_std_m adds in variance to the other terms; the uncertainty file's value is
+    taken where larger than the configured one, absent is 0 (bands unchanged), bad is refused."""
+    from railgsa_ros.errors import ConfigError
+    from railgsa_ros.uncertainty.parameters import with_discrepancy
+
+    stamps, mean = np.arange(5, dtype=np.int64) * 2_500_000, 1e-3 * np.ones(5)
+    config = UncertaintyConfig(delay_std_s=0.0, scale_std=0.01)
+    base = SensorTerms(config, None).std(stamps, mean, None, None)
+    plain, calibrated = tmp_path / 'plain.yaml', tmp_path / 'calibrated.yaml'
+    plain.write_text('parameters:\n  k_s: {dist: normal, mu: 2.13e+6, sigma: 2.13e+5}\n')
+    calibrated.write_text(plain.read_text() + 'discrepancy_std_m: 3.0e-5\n')
+    assert with_discrepancy(config, plain) == config and with_discrepancy(config, None) == config
+    widened = with_discrepancy(config, calibrated)
+    assert widened.discrepancy_std_m == 3e-5
+    assert with_discrepancy(config.with_(discrepancy_std_m=5e-5), calibrated) \
+        .discrepancy_std_m == 5e-5
+    std = SensorTerms(widened, None).std(stamps, mean, None, None)
+    np.testing.assert_allclose(std ** 2, base ** 2 + 9e-10, rtol=1e-12)
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(plain.read_text() + 'discrepancy_std_m: -1\n')
+    with pytest.raises(ConfigError, match='discrepancy_std_m'):
+        with_discrepancy(config, bad)

@@ -199,7 +199,7 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
     from railgsa_ros.inverse.grid import grid_config
     from railgsa_ros.offline import Driver
     from railgsa_ros.uncertainty import UncertaintyConfig
-    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
+    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3, with_discrepancy
 
     base = UncertaintyConfig()
     if args.uncertainty_params:  # the inversion comes from --params (equal to the node's)
@@ -211,6 +211,7 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
     dists = None
     if args.bands:
         dists = load_uncertainty(args.uncertainty) if args.uncertainty else table3(inp.vehicle)
+        base = with_discrepancy(base, args.uncertainty)
     return Driver(base.with_(inversion=config, qoi=''), inp.vehicle, dists, inp.options,
                   inp.location.scale.value)
 

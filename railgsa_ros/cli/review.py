@@ -125,7 +125,7 @@ def build_options(args: argparse.Namespace) -> Any:
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.review.results import ReviewOptions
     from railgsa_ros.uncertainty import UncertaintyConfig
-    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
+    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3, with_discrepancy
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     params = parameters(args)
@@ -139,6 +139,7 @@ def build_options(args: argparse.Namespace) -> Any:
     if not args.no_uncertainty:
         source = args.uncertainty or params.get('uncertainty_file') or None
         dists = load_uncertainty(source) if source else table3(vehicle)
+        config = with_discrepancy(config, source)
     return ReviewOptions(Path(args.bag), config, vehicle, dists,
                          Path(args.truth) if args.truth else None, args.limit_end,
                          imu_topic=args.imu_topic, odom_topic=args.odom_topic,

@@ -54,7 +54,7 @@ from railgsa_ros.nodes.specs import (
 )
 from railgsa_ros.nodes.stream_node import OUTPUT_FRAME, StreamNode
 from railgsa_ros.uncertainty import Band, Sensitivity, UncertaintyConfig, UncertaintyStream, Update
-from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
+from railgsa_ros.uncertainty.parameters import load_uncertainty, table3, with_discrepancy
 from railgsa_ros.vehicle import VehicleParams
 
 NODE_NAME = 'uncertainty_node'
@@ -113,6 +113,7 @@ class UncertaintyNode(StreamNode):
         self.vehicle = VehicleParams(**vehicle_values(values))
         self.dists = load_uncertainty(values['uncertainty_file']) if \
             values['uncertainty_file'] else table3(self.vehicle)
+        self.config = with_discrepancy(self.config, values['uncertainty_file'])
         self._values = values
         self.stream = self._new_stream()
         self.create_output(Vector3Stamped, 'track/irregularity_band', VECTOR3_STAMPED)

@@ -55,6 +55,10 @@ class UncertaintyConfig:
                                   's: adds |du/dt| * delay_std_s to the band', (0.0, 1.0))
     scale_std: float = _p(2e-3, 'standard uncertainty of the accelerometer scale factor '
                                 '(relative): adds scale_std * |u| to the band', (0.0, 1.0))
+    discrepancy_std_m: float = _p(0.0, 'model-discrepancy std, m (what calibrate measured beyond '
+                                       'the other terms; the uncertainty file\'s '
+                                       'discrepancy_std_m if larger): added in variance',
+                                  (0.0, 1.0))
     inversion: InversionConfig = field(default_factory=InversionConfig)
 
     def __post_init__(self) -> None:

@@ -17,11 +17,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from railgsa_ros.imu import ImuSpec, accel_covariance, imu_spec
+from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.scenario import Run
 from railgsa_ros.uncertainty.config import UncertaintyConfig
-from railgsa_ros.uncertainty.stream import offline_bands
+from railgsa_ros.uncertainty.stream import Band, offline_bands
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
@@ -65,14 +66,20 @@ class Coverage:
     near_samples: int = 0
 
 
+def truth_at(run: Run, band: Band, inversion: InversionConfig) -> np.ndarray:
+    """The run's truth band-passed on distance like the reconstruction, at the band's samples
+    (band chainage from the first sample, as the pipeline counts it), m."""
+    x = np.arange(run.chainage_m[0], run.chainage_m[-1], DX_M)
+    truth_x = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), DX_M, inversion.band,
+                            inversion.band_order)
+    return np.interp(band.chainage_m + run.chainage_m[0], x, truth_x)
+
+
 def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
              dists: Mapping[str, Distribution], preset: str,
              levels: Sequence[float] = (0.5, 0.95, 0.99)) -> Coverage:
     """Coverage of the bands of each central ``level`` on ``run`` (its odometry = run speed),
     computed with the datasheet noise of ``preset``."""
-    x = np.arange(run.chainage_m[0], run.chainage_m[-1], DX_M)
-    truth_x = band_distance(np.interp(x, run.chainage_m, run.truth_u_m), DX_M,
-                            config.inversion.band, config.inversion.band_order)
     period_ns = 1e9 / run.rate_hz
     ends = np.flatnonzero(np.diff(run.stamps_ns) > 1.5 * period_ns)  # last sample before a gap
     gaps_m = run.chainage_m[ends]
@@ -84,7 +91,7 @@ def coverage(run: Run, config: UncertaintyConfig, vehicle: VehicleParams,
                              vehicle=vehicle, dists=dists,
                              noise_variance=accel_covariance(imu_spec(preset)))
         chain = band.chainage_m + run.chainage_m[0]
-        truth = np.interp(chain, x, truth_x)
+        truth = truth_at(run, band, config.inversion)
         keep = ((chain > chain[0] + MARGIN_M) & (chain < chain[-1] - MARGIN_M)
                 & np.isfinite(band.mean_m) & (band.quality != Quality.INVALID))
         lo, hi = band.lower_m[keep], band.upper_m[keep]

@@ -5,6 +5,7 @@ Schema::
     parameters:
       k_s: {dist: normal, mu: 2.13e+6, sigma: 7.1e+5}   # optional lower/upper, default lower: 0
       c: {dist: uniform, a: 8.0e+4, b: 1.6e+5}
+    discrepancy_std_m: 4.0e-5   # optional, m: model discrepancy (``railgsa calibrate``), default 0
 
 Any of m_s, m_us, k_s, k_us, c. Distributions: normal (mu, sigma, lower, upper), uniform (a, b),
 lognormal (mu, sigma of ln x), gamma (shape, scale), exponential (rate), empirical (samples).
@@ -19,6 +20,7 @@ from typing import Any
 
 from railgsa_ros.config import key_list, load_yaml
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uq.distributions import (
     Distribution,
     Empirical,
@@ -103,3 +105,20 @@ def load_uncertainty(path: str | Path | None) -> dict[str, Distribution]:
     except ConfigError as exc:
         raise ConfigError(f'{path}: {exc}') from None
     return {name: parsed[name] for name in PARAM_NAMES if name in parsed}
+
+
+def load_discrepancy(path: str | Path) -> float:
+    """The file's model-discrepancy std ``discrepancy_std_m`` (m, in [0, 1]); 0 when absent."""
+    doc = load_yaml(path)
+    value = _number(doc.get('discrepancy_std_m', 0.0)) if isinstance(doc, dict) else 0.0
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+        raise ConfigError(f'{path}: discrepancy_std_m: expected a std in [0, 1] m, got {value!r}')
+    return float(value)
+
+
+def with_discrepancy(config: UncertaintyConfig, path: str | Path | None) -> UncertaintyConfig:
+    """``config`` with the uncertainty file's discrepancy where it is larger than the configured
+    one (no file: unchanged), so that every entry point that reads the file adds it to the band."""
+    if not path:
+        return config
+    return config.with_(discrepancy_std_m=max(config.discrepancy_std_m, load_discrepancy(path)))

@@ -14,6 +14,10 @@ and taken Gaussian, so their variances add (metres of irregularity):
 - gap filling: the std of the error the model fill of bridged gaps leaves at the sample
   (``Output.gap_std_m``: the fill's posterior covariance through the band FIR,
   ``GapFiller.error_variance``), largest next to a gap and decaying with the distance from it;
+- model discrepancy (Kennedy-O'Hagan): the error a reconstruction with the calibrated parameters
+  still makes against a surveyed reference beyond all the terms above (unmodelled effects such as
+  the chainage shift of a drifting sensor clock), measured by ``railgsa calibrate`` and written
+  as ``discrepancy_std_m`` into the uncertainty file: a constant std ``discrepancy_std_m``;
 - DEGRADED for another reason (the band design held, noise near the limit): the sample is taken
   to be at least as uncertain as the noisiest VALID one, std max(sigma_u(v), noise_limit_m),
   whichever is larger than the other terms together.
@@ -42,6 +46,7 @@ class SensorTerms:
         self._noise = noise_std_m if config.sensor_noise else None
         self._delay_std_s = config.delay_std_s
         self._scale_std = config.scale_std
+        self._discrepancy_m = config.discrepancy_std_m
         self._gap_floor_m = config.inversion.noise_limit_m
         self._last: tuple[int, float] | None = None
 
@@ -56,7 +61,7 @@ class SensorTerms:
             speed = np.asarray(speed_mps, dtype=float)
             known = np.isfinite(speed)  # unknown speed: an INVALID sample, no noise term
             noise = np.where(known, self._noise(np.where(known, speed, 1.0)), 0.0)
-        var = noise ** 2 + (self._scale_std * mean) ** 2
+        var = noise ** 2 + (self._scale_std * mean) ** 2 + self._discrepancy_m ** 2
         if self._delay_std_s > 0 and mean.size:
             var += (self._delay_std_s * self._rate(np.asarray(stamps_ns), mean)) ** 2
         gap = np.zeros(mean.shape) if gap_std_m is None else np.asarray(gap_std_m, float)
