@@ -3,12 +3,15 @@ band-edge list holds false alarms; ``--min-probability`` keeps the real exceedan
 
 from __future__ import annotations
 
+import argparse
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from railgsa_ros.bag import write_run
+from railgsa_ros.cli import review
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.review.build import build_review
@@ -35,10 +38,20 @@ def _truth_passes(run, e) -> bool:
     return bool(np.max(np.abs(u[near])) > e.limit_m)
 
 
+def _command_line(*argv: str) -> ReviewOptions:
+    """ReviewOptions as ``railgsa review`` builds them from ``argv`` (sensitivities off: cost)."""
+    parser = argparse.ArgumentParser()
+    review.register(parser.add_subparsers())
+    return replace(review.build_options(parser.parse_args(['review', *argv])), config=CONFIG)
+
+
 def test_min_probability_keeps_the_real_exceedances_only(simulated):
+    """The review's default (--min-probability 0.5) lists every real exceedance and no false
+    alarm; --min-probability 0 lists every band-edge stretch, false alarms included."""
     bag, run = simulated
-    every = build_review(ReviewOptions(bag, CONFIG, dists=table3()))
-    kept = build_review(ReviewOptions(bag, CONFIG, dists=table3(), min_probability=0.5))
+    every = build_review(_command_line(str(bag), '--out', 'DIR', '--min-probability', '0'))
+    kept = build_review(_command_line(str(bag), '--out', 'DIR'))
+    assert kept.options.min_probability == 0.5 and kept.options.dists == table3()
     assert all(0.0 <= e.probability <= 1.0 for e in every.exceedances)
     assert {e.start_m for e in kept.exceedances} <= {e.start_m for e in every.exceedances}
     real = [e for e in every.exceedances if _truth_passes(run, e)]
