@@ -119,15 +119,16 @@ class Driver:
     their decisions (and stamps, qualities) are the same; their outputs joined on the stamps
     (the band comes later by the difference of the filter delays). ``options``: the policies'
     input options; ``speed_scale``: factor on the odometry speeds (GNSS-corrected wheel
-    diameter)."""
+    diameter); ``quantiles`` False: bands of the mean only (``UncertaintyStream``)."""
 
     def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
                  dists: Mapping[str, Distribution] | None, options: PolicyOptions,
-                 speed_scale: float = 1.0) -> None:
+                 speed_scale: float = 1.0, quantiles: bool = True) -> None:
         self.config = config
         self.options = options
         self.nominal = InputPolicy(config.inversion, vehicle, options=options)
-        self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True)
+        self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True,
+                                       quantiles=quantiles)
                      if dists is not None else None)
         self.speed_scale = float(speed_scale)
         self._pending = Output.concat([])  # nominal samples awaiting a band

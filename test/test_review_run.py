@@ -118,6 +118,45 @@ def test_the_band_is_the_uncertainty_core_band(simulated, review) -> None:
     assert float(worst.result.mean) == pytest.approx(band.mean_m[k] / MM, rel=1e-9)
 
 
+def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The review computes the quantiles only where it keeps them (review.band): its grid,
+    exceedances (with their band at the peak) and widest band equal those of the band computed
+    at every sample (to 1e-12: the PCE coefficients' einsum rounds a sample's sums by the chunk
+    it is in, in the last bit)."""
+    from railgsa_ros.offline import Source
+    from railgsa_ros.review import band as kept
+    from railgsa_ros.review.limits import en13848_limits
+    from railgsa_ros.review.stream import run_stream
+
+    def everywhere(self, chainage_m, u_m, speed_mps, mean_m, bank_u_m, sensor_std_m, widest_m):
+        lower, _, upper = kept.band_statistics(self.design, self.quantiles, bank_u_m,
+                                               sensor_std_m)
+        return lower, upper
+
+    monkeypatch.setattr(kept.KeptBand, 'take', everywhere)
+    bag, _ = simulated
+    full, _ = run_stream(Source(bag), CHEAP, review.options.vehicle, table3(),
+                         en13848_limits())
+    run = review.run
+    assert np.array_equal(run.grid.u_m, full.grid.u_m, equal_nan=True)
+    for name in ('lower_m', 'upper_m'):
+        np.testing.assert_allclose(getattr(run.grid, name), getattr(full.grid, name),
+                                   rtol=1e-12, atol=0)
+    assert run.exceedances and len(run.exceedances) == len(full.exceedances)
+    for mine, theirs in zip(run.exceedances, full.exceedances, strict=True):
+        band = ('lower_m', 'upper_m')
+        np.testing.assert_allclose([getattr(mine, f) for f in band],
+                                   [getattr(theirs, f) for f in band], rtol=1e-12, atol=0)
+        assert replace(mine, lower_m=0, upper_m=0, probability=0) == \
+            replace(theirs, lower_m=0, upper_m=0, probability=0)
+        np.testing.assert_array_equal(mine.probability, theirs.probability)
+    assert (run.widest.stamp_ns, run.widest.chainage_m) == \
+        (full.widest.stamp_ns, full.widest.chainage_m)
+    assert run.widest.value_m == pytest.approx(full.widest.value_m, rel=1e-12, abs=0)
+    assert run.worst.stamp_ns == full.worst.stamp_ns
+
+
 def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: Path) -> None:
     report = write_review(review, tmp_path / 'out')
     html = report.read_text(encoding='utf-8')

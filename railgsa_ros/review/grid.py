@@ -145,17 +145,23 @@ class CellInterpolator:
             self._last = tuple(float(c[-1]) for c in cols)
         c = cols[0]
         lo, hi = c[:-1], c[1:]
-        with np.errstate(invalid='ignore'):
-            ok = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
-            first = np.where(ok, np.floor(lo / self.dx_m - 0.5), 0).astype(np.int64) + 1
-            last = np.where(ok, np.floor(hi / self.dx_m - 0.5), 0).astype(np.int64)
-        count = np.where(ok, np.maximum(last - first + 1, 0), 0)
+        first, count = cells_between(lo, hi, self.dx_m)
         pair = np.repeat(np.arange(lo.size), count)
         cell = first[pair] + (np.arange(pair.size) - np.repeat(np.cumsum(count) - count, count))
         t = ((cell + 0.5) * self.dx_m - lo[pair]) / (hi[pair] - lo[pair])
         values = [v[pair] + t * (v[pair + 1] - v[pair]) for v in cols[1:]]
         valid = ((hi - lo)[pair] < self.max_step_m) & np.isfinite(values[0])  # NaN: INVALID
         return cell, values, valid
+
+
+def cells_between(lo: np.ndarray, hi: np.ndarray, dx_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(first cell, cell count) (K,) int64 of the sample pairs with chainages lo, hi (K,) m: the
+    cells whose centre x has lo < x <= hi (none where a chainage is NaN or hi <= lo)."""
+    with np.errstate(invalid='ignore'):
+        ok = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+        first = np.where(ok, np.floor(lo / dx_m - 0.5), 0).astype(np.int64) + 1
+        last = np.where(ok, np.floor(hi / dx_m - 0.5), 0).astype(np.int64)
+    return first, np.where(ok, np.maximum(last - first + 1, 0), 0)
 
 
 class GridBuilder:

@@ -40,6 +40,7 @@ from railgsa_ros.offline import (
     peek,
     steps,
 )
+from railgsa_ros.review.band import KeptBand
 from railgsa_ros.review.exceedances import Exceedance, ExceedanceTracker
 from railgsa_ros.review.grid import DX_M, Grid, GridBuilder
 from railgsa_ros.review.health import HealthAccumulator, InputHealth
@@ -116,9 +117,10 @@ class _Summaries:
     """The bounded summaries of the module docstring, updated step by step."""
 
     def __init__(self, source: Source, limits: Limits, section_m: float,
-                 design: Design | None) -> None:
+                 design: Design | None, quantiles: tuple[float, float]) -> None:
         self.source = source
         self.grid = GridBuilder(DX_M)
+        self.band = KeptBand(design, quantiles, limits, DX_M) if design is not None else None
         self.tracker = ExceedanceTracker(limits, design=design)
         self.exceedances: list[Exceedance] = []
         self.speeds = SectionSpeeds(section_m)
@@ -151,10 +153,13 @@ class _Summaries:
                 return
             c = step.chainage_m
         self.valid += len(step)
-        band = step.band
+        band, bank = step.band, step.bank_u_m
         lower = upper = None
-        if band is not None:
-            lower, upper = band.lower_m, band.upper_m
+        if band is not None and bank is not None and step.sensor_std_m is not None \
+                and self.band is not None:
+            lower, upper = self.band.take(c, step.u_m, step.speed_mps, band.mean_m, bank,
+                                          step.sensor_std_m,
+                                          self.widest.value_m if self.widest else -np.inf)
         self.grid.push(c, step.u_m, step.speed_mps, lower, upper)
         self.exceedances += self.tracker.push(c, step.u_m, step.speed_mps, step.stamps_ns,
                                               lower, upper, step.bank_u_m,
@@ -163,9 +168,8 @@ class _Summaries:
         self.classes += np.bincount(speed_class(step.speed_mps) % self.classes.size,
                                     minlength=self.classes.size)
         self.peak = _larger(self.peak, step.stamps_ns, c, step.u_m, np.abs(step.u_m))
-        bank = step.bank_u_m
-        if band is not None and bank is not None:
-            width = band.upper_m - band.lower_m
+        if lower is not None and upper is not None and band is not None and bank is not None:
+            width = upper - lower
             self.widest = _larger(self.widest, step.stamps_ns, c, width, width)
             k = int(np.argmax(np.abs(band.mean_m)))
             if self.worst is None or abs(band.mean_m[k]) > abs(self.worst.mean_m):
@@ -210,10 +214,12 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
     elif source.odom_topic not in source.topics():
         raise InputError(f'{source.bag}: no odometry on {source.odom_topic}: the speed is '
                          'unknown')
-    driver = Driver(config, vehicle, dists, options, location.scale.value)
+    # the bank's band without quantiles: the summaries compute those they keep (review.band)
+    driver = Driver(config, vehicle, dists, options, location.scale.value, quantiles=False)
     health = HealthAccumulator(inv.gap_factor)
     summaries = _Summaries(source, limits, section_m,
-                           driver.bank.design if driver.bank is not None else None)
+                           driver.bank.design if driver.bank is not None else None,
+                           (config.lower_quantile, config.upper_quantile))
 
     def watched(pieces: Iterator[ImuStream]) -> Iterator[ImuStream]:
         for piece in pieces:

@@ -94,7 +94,7 @@ def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarra
     the loaded 2-core machine that took 22 ms for one (50, 19) x (19, 1024) product), the sums
     of each row are the same whatever the chunking, and it is 20x faster than einsum.
     """
-    coef = np.einsum('tp,pk->kt', design.projector, u)  # (K, T)
+    coef = pce_coefficients(design, u)
     count, size = coef.shape[0], design.germ_basis.shape[1]
     pos = np.asarray(quantiles) * (size - 1)
     rank = np.floor(pos).astype(np.int64)
@@ -116,6 +116,20 @@ def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarra
         bounds[lo:lo + BLOCK] = below + (above - below) * frac
     mean = coef[:, 0]
     return mean + bounds[:count, 0], mean, mean + bounds[:count, 1]
+
+
+def pce_coefficients(design: Design, u: np.ndarray) -> np.ndarray:
+    """PCE coefficients (K, T) of bank outputs u (P, K) m; column 0 is the mean."""
+    return np.einsum('tp,pk->kt', design.projector, u)
+
+
+def deviation_bound(design: Design, u: np.ndarray, sensor_std_m: np.ndarray) -> np.ndarray:
+    """A bound (K,) m on |surrogate sample - mean| over every germ sample of the band of bank
+    outputs u (P, K) with sensor terms (K,) m (Cauchy-Schwarz on c[1:] . psi_j + s n_j): each
+    quantile of :func:`band_statistics` lies within mean +- bound. NaN where u is."""
+    coef = pce_coefficients(design, u)
+    reach = np.sqrt(np.max(np.sum(design.germ_basis ** 2, axis=0) + design.noise_germ ** 2))
+    return np.sqrt(np.sum(coef[:, 1:] ** 2, axis=1) + np.square(sensor_std_m)) * reach
 
 
 def order_statistics(values: np.ndarray, ranks: np.ndarray) -> np.ndarray:
@@ -161,14 +175,16 @@ class UncertaintyStream:
     the stamps to match); ``vehicle``: nominal parameters (Table 1 by default); ``dists``:
     uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
     ``noise_variance``: a fixed accelerometer variance, (m/s^2)^2 (None: the policy's rule);
-    ``options``: the policy's PolicyOptions.
+    ``options``: the policy's PolicyOptions; ``quantiles`` False: the bands hold the mean
+    only (lower/upper NaN: the review computes the quantiles of the samples it keeps).
     """
 
     def __init__(self, config: UncertaintyConfig | None = None,
                  vehicle: VehicleParams | None = None,
                  dists: Mapping[str, Distribution] | None = None,
                  noise_variance: float | None = None,
-                 options: PolicyOptions | None = None, *, defer: bool = False) -> None:
+                 options: PolicyOptions | None = None, *, defer: bool = False,
+                 quantiles: bool = True) -> None:
         self.config = config if config is not None else UncertaintyConfig()
         vehicle = vehicle if vehicle is not None else VehicleParams()
         self.design = build_design(self.config, vehicle,
@@ -178,7 +194,8 @@ class UncertaintyStream:
         # the sensor terms use the policy's noise floor (its noise decision from the data)
         self.terms = SensorTerms(self.config, self.policy.noise_std_m)
         self.windows = WindowAnalyzer(self.config, self.design, defer=defer)
-        self._quantiles = (self.config.lower_quantile, self.config.upper_quantile)
+        self._quantiles = ((self.config.lower_quantile, self.config.upper_quantile)
+                           if quantiles else None)
 
     @property
     def pipeline(self) -> InversionPipeline:
@@ -235,11 +252,16 @@ class UncertaintyStream:
                       out.u_m, sensor)
 
 
-def bank_band(design: Design, quantiles: tuple[float, float], out: Output,
+def bank_band(design: Design, quantiles: tuple[float, float] | None, out: Output,
               sensor_std_m: np.ndarray) -> Band:
     """The band of bank outputs ``out`` with the sensor terms ``sensor_std_m`` (K,) m: NaN
-    where INVALID (the statistics run on the other samples only)."""
+    where INVALID (the statistics run on the other samples only); ``quantiles`` None: the
+    mean only (the PCE's c_0, as ``band_statistics`` has it), lower and upper NaN."""
     good = out.graded != Quality.INVALID
+    if quantiles is None:
+        nan = np.full(len(out), np.nan)
+        mean = np.where(good, pce_coefficients(design, out.u_m)[:, 0], np.nan)
+        return Band(out.stamps_ns, out.chainage_m, nan, mean, nan.copy(), out.quality)
     if good.all():
         lower, mean, upper = band_statistics(design, quantiles, out.u_m, sensor_std_m)
         return Band(out.stamps_ns, out.chainage_m, lower, mean, upper, out.quality)
