@@ -120,16 +120,16 @@ def test_the_band_is_the_uncertainty_core_band(simulated, review) -> None:
 
 def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
-    """The review computes the quantiles only where it keeps them (review.band): its grid,
-    exceedances (with their band at the peak) and widest band equal those of the band computed
-    at every sample (to 1e-12: the PCE coefficients' einsum rounds a sample's sums by the chunk
-    it is in, in the last bit)."""
+    """The review computes the quantiles only where it keeps them (review.band): its grid and
+    exceedances (with their band at the peak) equal those of the band computed at every sample
+    (to 1e-12: the PCE coefficients' einsum rounds a sample's sums by the chunk it is in, in the
+    last bit); its widest band is the widest of the samples around the grid's cells."""
     from railgsa_ros.offline import Source
     from railgsa_ros.review import band as kept
     from railgsa_ros.review.limits import en13848_limits
     from railgsa_ros.review.stream import run_stream
 
-    def everywhere(self, chainage_m, u_m, speed_mps, mean_m, bank_u_m, sensor_std_m, widest_m):
+    def everywhere(self, chainage_m, u_m, speed_mps, mean_m, bank_u_m, sensor_std_m):
         lower, _, upper = kept.band_statistics(self.design, self.quantiles, bank_u_m,
                                                sensor_std_m)
         return lower, upper
@@ -151,9 +151,8 @@ def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
         assert replace(mine, lower_m=0, upper_m=0, probability=0) == \
             replace(theirs, lower_m=0, upper_m=0, probability=0)
         np.testing.assert_array_equal(mine.probability, theirs.probability)
-    assert (run.widest.stamp_ns, run.widest.chainage_m) == \
-        (full.widest.stamp_ns, full.widest.chainage_m)
-    assert run.widest.value_m == pytest.approx(full.widest.value_m, rel=1e-12, abs=0)
+    assert run.widest.chainage_m == pytest.approx(full.widest.chainage_m, abs=0.25)
+    assert full.widest.value_m * (1 - 1e-3) <= run.widest.value_m <= full.widest.value_m
     assert run.worst.stamp_ns == full.worst.stamp_ns
 
 

@@ -7,7 +7,8 @@ Per chunk of emitted samples the review updates bounded summaries:
   per metre of run) for the figures, the 200 m sections and the truth comparison;
 - the exceedances (``exceedances.ExceedanceTracker``: only the samples beyond a limit of the run
   still open are looked at);
-- the mean speed per section, the largest |u|, the widest band, the sample count per speed
+- the mean speed per section, the largest |u|, the widest band (of the samples whose band is
+  computed, ``review.band``), the sample count per speed
   class, the first and last output;
 - the input health (``health.HealthAccumulator``: stamp statistics, messages per second);
 - the sample of largest |PCE mean| with its bank outputs (the histogram), and the window
@@ -158,8 +159,7 @@ class _Summaries:
         if band is not None and bank is not None and step.sensor_std_m is not None \
                 and self.band is not None:
             lower, upper = self.band.take(c, step.u_m, step.speed_mps, band.mean_m, bank,
-                                          step.sensor_std_m,
-                                          self.widest.value_m if self.widest else -np.inf)
+                                          step.sensor_std_m)
         self.grid.push(c, step.u_m, step.speed_mps, lower, upper)
         self.exceedances += self.tracker.push(c, step.u_m, step.speed_mps, step.stamps_ns,
                                               lower, upper, step.bank_u_m,
