@@ -109,14 +109,17 @@ class ImuIntake:
         self._stopping = False
         self._thread = threading.Thread(target=self._read, daemon=True,
                                         name=f'{node.get_name()}_imu_reader')
-        node.context.on_shutdown(self.stop)
         self._thread.start()
+        node.context.on_shutdown(self.stop)  # after start: a signal may come at any line
 
     # ------------------------------------------------------------------ reader thread
     def _read(self) -> None:
         subs = [s.handle for s in (self.imu, self.odom) if s is not None]
-        wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self._node.context.handle)
-        while not self._stopping:
+        try:
+            wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self._node.context.handle)
+        except Exception:  # the context was shut down (a signal) before the thread ran
+            return
+        while not self._stopping and self._node.context.ok():  # ok(): no stop() after a signal
             try:
                 self._wait(wait_set, subs, self._idle_ns)
                 if self._stopping:
@@ -131,7 +134,7 @@ class ImuIntake:
                 if rest > 0:
                     self._wait(wait_set, [], int(rest * 1e9))
             except Exception as exc:  # the node must survive anything; the core is guarded
-                if self._stopping:
+                if self._stopping or not self._node.context.ok():
                     return
                 self._node.get_logger().error(f'imu reader: {exc!r}',
                                               throttle_duration_sec=1.0)
@@ -160,7 +163,7 @@ class ImuIntake:
         self._stopping = True
         with suppress(Exception):  # a context already shut down ends the wait by itself
             self._wake.trigger_guard_condition()
-        if self._thread is not threading.current_thread():
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(JOIN_TIMEOUT_S)
 
     def destroy(self) -> None:
