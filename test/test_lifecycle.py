@@ -117,7 +117,10 @@ def test_change_state_service_activates_a_node_started_without_autostart(
     executor = SingleThreadedExecutor(context=ros_context)
     get = client.create_client(GetState, 'irregularity_node/get_state')
     change = client.create_client(ChangeState, 'irregularity_node/change_state')
-    assert get.wait_for_service(90.0) and change.wait_for_service(10.0), proc.stop().stderr
+    if not (get.wait_for_service(90.0) and change.wait_for_service(10.0)):
+        graph = (client.get_node_names_and_namespaces(), client.get_service_names_and_types())
+        raise AssertionError(f'no lifecycle services; node alive: {proc.running()}; '
+                             f'graph: {graph}; stderr: {proc.stop().stderr}')
 
     def call(cli: Any, req: Any) -> Any:
         """Retried: the graph may still list the services of nodes destroyed by earlier tests,

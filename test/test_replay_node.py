@@ -307,11 +307,13 @@ def test_cli_replay_waits_for_a_subscriber_started_after_it(tmp_path: Path, ros_
         assert wait_for(lambda: 'waiting up to 10 s' in log.read_text(), 30.0), log.read_text()
         sink = Sink(ros_context, spin, {'/imu/data': imu_class()})
         assert proc.wait(30) == 0
-        assert wait_for(lambda: len(sink.got['/imu/data']) >= 300, 5.0)
+        wait_for(lambda: len(sink.got['/imu/data']) >= 300, 5.0)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert sink.raws('/imu/data') == [raw for _, _, raw in written]
+    got = sink.raws('/imu/data')
+    missing = [i for i, (_, _, raw) in enumerate(written) if raw not in set(got)]
+    assert got == [raw for _, _, raw in written], (missing, log.read_text())
 
 
 def test_cli_replay_waits_10_s_by_default_and_no_wait_is_0() -> None:
