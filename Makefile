@@ -19,7 +19,7 @@ demo: $(VENV)/.installed
 	$(ROSENV) $(VENV)/bin/railgsa demo --out $(OUT)
 
 test: $(VENV)/.installed
-	$(ROSENV) $(PY) -m pytest -q -p no:cacheprovider
+	$(ROSENV) $(PY) -m pytest -q -p no:cacheprovider --durations=30
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check .
