@@ -116,10 +116,10 @@ def startup_lines(log: Path) -> dict[str, list[str]]:
 @pytest.mark.ros
 def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
         tmp_path: Path, ros_context: Any, spin: Any, wait_for: Any) -> None:
-    """One params file, namespace train1: each node logs one start-up line with the file's
-    values, both publish exactly the stamps of the IMU samples sent (same values: one to one;
-    all of them at the idle flush),
-    and SIGTERM to ``railgsa run`` ends everything with exit 0."""
+    """One params file, namespace train1, ``--record``: each node logs one start-up line with
+    the file's values, both publish exactly the stamps of the IMU samples sent (same values: one
+    to one; all of them at the idle flush), the recorder's bag holds those outputs and
+    /diagnostics, and SIGTERM to ``railgsa run`` ends everything with exit 0."""
     from geometry_msgs.msg import PointStamped, Vector3Stamped
     import numpy as np
     from rclpy.node import Node
@@ -137,7 +137,9 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
                                    ('band', Vector3Stamped, 'track/irregularity_band'))}
     imu = test.create_publisher(Imu, 'imu/data', sensor_qos())
     spin(test)
-    proc, log = start_run(tmp_path, '--params', str(params), '--namespace', 'train1')
+    bag = tmp_path / 'recorded'
+    proc, log = start_run(tmp_path, '--params', str(params), '--namespace', 'train1',
+                          '--record', str(bag))
     try:
         assert wait_for(lambda: all(startup_lines(log).values()) or proc.poll() is not None,
                         90.0), log.read_text()
@@ -149,7 +151,9 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
             assert 'spectral, band d1' in line and f'/train1/imu/data -> {outputs}' in line
         assert 'speed from speed_mps 40.0 m/s' in lines['irregularity_node'][0]
         assert '(pem3, order 1,' in lines['uncertainty_node'][0]
-        assert wait_for(lambda: imu.get_subscription_count() >= 2, 30.0)
+        assert wait_for(lambda: imu.get_subscription_count() >= 2 and all(  # and the recorder
+            test.count_subscribers(t) >= 2 for t in ('track/irregularity',
+                                                     'track/irregularity_band')), 30.0)
         time.sleep(1.0)  # the readers' side of the match (a BEST_EFFORT reader drops before)
         stamps = 1_700_000_000 * 10**9 + np.arange(600) * 1_000_000  # < the band delay
         accel = 9.80665 + 0.05 * np.random.default_rng(0).standard_normal(stamps.size)
@@ -168,6 +172,24 @@ def test_run_starts_both_nodes_from_one_file_and_forwards_sigterm(
         if proc.poll() is None:
             proc.kill()
     assert 'Traceback' not in log.read_text()
+    recorded = recorded_stamps(bag)
+    for topic in ('/train1/track/irregularity', '/train1/track/irregularity_band'):
+        assert recorded[topic] == stamps.tolist(), topic
+    assert recorded['/diagnostics']
+
+
+def recorded_stamps(bag: Path) -> dict[str, list[int]]:
+    """Topic -> header stamps (ns) of the messages in a recorded bag (rosbags' reader)."""
+    from rosbags.highlevel import AnyReader
+
+    from railgsa_ros.bag.messages import typestore
+
+    found: dict[str, list[int]] = {}
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        for conn, _, raw in reader.messages():
+            stamp = reader.deserialize(raw, conn.msgtype).header.stamp
+            found.setdefault(conn.topic, []).append(stamp.sec * 10**9 + stamp.nanosec)
+    return found
 
 
 FAKE_NODE = """import signal, sys, time
