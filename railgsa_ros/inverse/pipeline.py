@@ -116,26 +116,40 @@ def taper(n: np.ndarray, length: int) -> np.ndarray:
 
 class _Meta:
     """Per-sample metadata waiting in the delay line: stamps, chainage, speed, emit flag, input
-    quality."""
+    quality. Columns with room to grow (a live push appends one sample to D waiting ones; a
+    concatenation would copy all D each time); samples are written past the newest only, so
+    the views ``pop`` returns stay valid."""
 
-    FIELDS = ('stamps', 'chainage', 'speed', 'emit', 'quality')
+    DTYPES = (np.int64, np.float64, np.float64, np.bool_, np.uint8)
+    MIN_ROOM = 1024  # samples
 
     def __init__(self) -> None:
-        self.stamps = np.zeros(0, np.int64)
-        self.chainage = np.zeros(0)
-        self.speed = np.zeros(0)
-        self.emit = np.zeros(0, bool)
-        self.quality = np.zeros(0, np.uint8)
+        self._cols = [np.zeros(0, dtype) for dtype in self.DTYPES]
+        self._lo = self._hi = 0  # the waiting samples are [_lo, _hi) of every column
+
+    @property
+    def speed(self) -> np.ndarray:
+        """Speeds (m/s) of the waiting samples, oldest first."""
+        return self._cols[2][self._lo:self._hi]
 
     def extend(self, *values: np.ndarray) -> None:
-        for name, value in zip(self.FIELDS, values, strict=True):
-            setattr(self, name, np.concatenate([getattr(self, name), value]))
+        """Append (stamps, chainage, speed, emit, quality), all (N,)."""
+        n = values[0].size
+        if self._hi + n > self._cols[0].size:  # new columns: the waiting samples, then room
+            size = self._hi - self._lo
+            room = max(size + n, self.MIN_ROOM)
+            self._cols = [np.concatenate([c[self._lo:self._hi], np.empty(room, c.dtype)])
+                          for c in self._cols]
+            self._lo, self._hi = 0, size
+        for col, value in zip(self._cols, values, strict=True):
+            col[self._hi:self._hi + n] = value
+        self._hi += n
 
     def pop(self, count: int) -> tuple[np.ndarray, ...]:
         """(stamps, chainage, speed, emit, quality) of the oldest ``count`` samples."""
-        out = tuple(getattr(self, name)[:count] for name in self.FIELDS)
-        for name in self.FIELDS:
-            setattr(self, name, getattr(self, name)[count:])
+        count = min(count, self._hi - self._lo)
+        out = tuple(c[self._lo:self._lo + count] for c in self._cols)
+        self._lo += count
         return out
 
 
@@ -210,6 +224,11 @@ class InversionPipeline:
         return dict(self.sanitizer.counters + self._counters)
 
     @property
+    def accepted(self) -> int:
+        """IMU samples the sanitiser accepted so far (``counters['accepted']``, cheaply)."""
+        return self.sanitizer.counters['accepted']
+
+    @property
     def chainage_m(self) -> float:
         """Chainage of the newest sample pushed (m); the start chainage before any."""
         return self._chain[1] if self._chain is not None else self.start_chainage_m
@@ -235,10 +254,14 @@ class InversionPipeline:
         clean = self.sanitizer.process(stamps_ns, acc_z, speed, frame_ids)
         if quality is None:
             q_clean = np.zeros(clean.accel.size, np.uint8)
+        elif clean.index is None:  # every sample accepted in order
+            q_clean = np.array(quality, np.uint8)
         else:
             pos = clean.positions()
             q_clean = np.where(pos >= 0, np.asarray(quality, np.uint8)[np.maximum(pos, 0)], 0
                                ).astype(np.uint8)
+        if clean.index is None and not clean.reset_before[:1].any():  # one piece, no restart
+            return self._public(self._run(clean, q_clean, slice(None)))
         cuts = np.flatnonzero(clean.reset_before)
         outs = []
         for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [clean.accel.size]]),
@@ -437,8 +460,10 @@ class InversionPipeline:
         outs = []
         lo = 0
         while True:
-            v_kf, v_band = self._targets(bounds)
-            due = np.flatnonzero(np.isfinite(v_kf) | np.isfinite(v_band))
+            due = bounds  # empty: no switch boundary in this piece (the usual live push)
+            if bounds.size:
+                v_kf, v_band = self._targets(bounds)
+                due = np.flatnonzero(np.isfinite(v_kf) | np.isfinite(v_band))
             b = int(bounds[due[0]]) - n0 if due.size else a_s.size
             if b > lo:
                 x = u[:, lo:b] if u is not None else (
@@ -494,10 +519,12 @@ class InversionPipeline:
         first = self._meta_start
         stamps, chain, speed, emit, quality = self._meta.pop(count)
         self._meta_start += count
-        keep = slice(None) if emit.all() else emit  # no bridged samples: views, no copies
-        self._counters['emitted'] += int(emit.sum())
+        every = bool(emit.all())
+        keep = slice(None) if every else emit  # no bridged samples: views, no copies
+        self._counters['emitted'] += count if every else int(emit.sum())
         quality = self._window_quality(first, quality, speed)
-        gap_std = np.sqrt(self._gap_variance(first, count))
+        gap_std = np.sqrt(self._gap_variance(first, count)) if self._gap_var else \
+            np.zeros(count)
         return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep], quality[keep],
                       speed[keep], gap_std[keep])
 
@@ -575,6 +602,8 @@ class InversionPipeline:
 
     def _join(self, outs: list[Output]) -> Output:
         """Concatenate internal outputs (u always (P, K))."""
+        if len(outs) == 1 and len(outs[0]):
+            return outs[0]  # what concat returns, without building its empty default
         return Output.concat(outs, self.theta.shape[0])
 
     def _public(self, out: Output) -> Output:

@@ -55,7 +55,20 @@ RATE_BLOCK = 512  #: stamp steps per rate measurement (median: robust to dropout
 REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
 REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
+#: batches up to this many samples take the scalar paths (Python floats, the same operations in
+#: the same order as the vectorised ones: bit-identical; a live push is 1-5 samples, where the
+#: fixed cost of some 20 numpy calls each was most of the policy's cost)
+SMALL = 8
 AXES = 'xyz'
+_VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
+
+
+def _largest(values: list[float]) -> int:
+    """np.argmax(np.abs(values)) of a short list: the first NaN, else the first largest."""
+    mags = [abs(v) for v in values]
+    return next((k for k, m in enumerate(mags) if m != m), mags.index(max(mags)))
+
+
 _HINTS = {'wrong_frame': "set frame_id to the driver's frame_id or wrong_frame_policy to "
                          'accept',
           'nan': 'the accelerations are NaN or marked absent (covariance[0] = -1)',
@@ -112,6 +125,9 @@ class _Held:
     """IMU samples waiting for their speed decision, in arrival order."""
 
     def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
         self.stamps = np.zeros(0, np.int64)
         self.accel = np.zeros((0, 3))
         self.frames = np.zeros(0, dtype=object)
@@ -123,6 +139,10 @@ class _Held:
 
     def extend(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
                flags: np.ndarray, arrival: np.ndarray) -> None:
+        if not len(self):  # the usual live case: nothing waits, no copy
+            self.stamps, self.accel, self.frames = stamps, accel, frames
+            self.flags, self.arrival = flags, arrival
+            return
         self.stamps = np.concatenate([self.stamps, stamps])
         self.accel = np.concatenate([self.accel, accel])
         self.frames = np.concatenate([self.frames, frames])
@@ -132,6 +152,9 @@ class _Held:
     def pop(self, count: int) -> tuple[np.ndarray, ...]:
         out = (self.stamps[:count], self.accel[:count], self.frames[:count],
                self.flags[:count])
+        if count == len(self):
+            self.clear()
+            return out
         self.stamps, self.accel = self.stamps[count:], self.accel[count:]
         self.frames, self.flags = self.frames[count:], self.flags[count:]
         self.arrival = self.arrival[count:]
@@ -175,7 +198,8 @@ class InputPolicy:
         self._odom_t = np.zeros(0, np.int64)
         self._odom_v = np.zeros(0)
         self._gravity: np.ndarray | None = None  # running mean (3,) m/s^2 of the finite rows
-        self._rate_steps = np.zeros(0, np.int64)  # stamp steps of the open rate block
+        self._rate_steps = np.zeros(RATE_BLOCK, np.int64)  # stamp steps of the open rate block
+        self._rate_fill = 0  # how many of them are filled
         self._rate_prev: int | None = None  # last finite stamp seen
         self._rate_ok = True
         self._reject_run = 0  # samples pushed since the last accepted one
@@ -263,12 +287,20 @@ class InputPolicy:
             accel[absent] = np.nan
             self._note_variances(cov, absent)
         self._frame_check(frames)
-        flags = np.maximum(self._gravity_flags(accel), self._rate_flags(stamps, accel))
+        finite = np.isfinite(accel).all(axis=1)
+        if stamps.size <= SMALL:
+            rows = finite.tolist()
+            flags = np.maximum(self._gravity_flags_small(accel, rows),
+                               self._rate_flags_small(stamps, rows))
+            newest = [t for t, ok in zip(stamps.tolist(), rows, strict=True) if ok]
+        else:
+            flags = np.maximum(self._gravity_flags(accel, finite),
+                               self._rate_flags(stamps, finite))
+            newest = stamps[finite]
         arrival = self._received + np.arange(stamps.size)
         self._received += stamps.size
-        finite = stamps[np.isfinite(accel).all(axis=1)]
-        if finite.size:
-            self._newest_imu = max(self._newest_imu, int(finite.max()))
+        if len(newest):
+            self._newest_imu = max(self._newest_imu, int(max(newest)))
         self._held.extend(stamps, accel, frames, flags, arrival)
         return self._release(final=False)
 
@@ -374,7 +406,10 @@ class InputPolicy:
 
     # ------------------------------------------------------------------ checks at arrival
     def _frame_check(self, frames: np.ndarray) -> None:
-        match = frame_mask(frames, self.config.frame_id)
+        expected = self.config.frame_id
+        if frames.size <= SMALL and all(type(f) is str and f == expected for f in frames):
+            return  # what frame_mask finds, without its conversion to str
+        match = frame_mask(frames, expected)
         if match is None or match.all():
             return
         other = str(frames[~match][0])
@@ -388,12 +423,12 @@ class InputPolicy:
                 f'IMU frame_id {other!r} is not {self.config.frame_id!r}: rejected; set '
                 f'frame_id to {other!r} or wrong_frame_policy to accept'))
 
-    def _gravity_flags(self, accel: np.ndarray) -> np.ndarray:
+    def _gravity_flags(self, accel: np.ndarray, finite: np.ndarray) -> np.ndarray:
         """INVALID where the running mean of the three axes does not put gravity on the
-        configured axis and sign (off when gravity_mps2 is 0)."""
+        configured axis and sign (off when gravity_mps2 is 0); ``finite`` (T,): rows without
+        NaN."""
         cfg = self.config
         flags = np.zeros(accel.shape[0], np.uint8)
-        finite = np.isfinite(accel).all(axis=1)
         if cfg.gravity_mps2 == 0 or not finite.any():
             return flags
         rows = accel[finite]
@@ -403,21 +438,52 @@ class InputPolicy:
         zi = ((1.0 - alpha) * self._gravity)[:, None]
         mean, _ = lfilter([alpha], [1.0, alpha - 1.0], rows.T, axis=1, zi=zi)  # (3, N)
         self._gravity = mean[:, -1].copy()
-        col = AXES.index(cfg.accel_axis[-1])
-        sign = -1.0 if cfg.accel_axis.startswith('-') else 1.0
+        col, sign = self._axis
         up = sign * mean[col]
         top = np.argmax(np.abs(mean), axis=0)
         good = (top == col) & (np.abs(up - cfg.gravity_mps2)
                                <= GRAVITY_TOLERANCE * cfg.gravity_mps2)
-        flags[finite] = np.where(good, Quality.VALID, Quality.INVALID)
-        bad = ~good
-        self._counts['gravity_invalid'] += int(bad.sum())
-        last = mean[:, -1]
-        if not bad[-1]:
+        flags[finite] = np.where(good, _VALID, _INVALID)
+        self._counts['gravity_invalid'] += int((~good).sum())
+        self._gravity_finding(mean[:, -1].tolist(), not good[-1])
+        return flags
+
+    def _gravity_flags_small(self, accel: np.ndarray, finite: list[bool]) -> np.ndarray:
+        """``_gravity_flags`` of a few samples in Python floats: lfilter's recursion (direct
+        form II transposed: y = z + b0 x, z = b1 x - a1 y with b1 = 0) and the same decisions,
+        bit-identical."""
+        cfg = self.config
+        g = cfg.gravity_mps2
+        if g == 0 or not any(finite):
+            return np.zeros(len(finite), np.uint8)
+        data = accel.tolist()
+        alpha = min(1.0, 1.0 / (GRAVITY_TAU_S * cfg.rate_hz))
+        a1, tolerance = alpha - 1.0, GRAVITY_TOLERANCE * g
+        col, sign = self._axis
+        start = data[finite.index(True)] if self._gravity is None else self._gravity.tolist()
+        z = [(1.0 - alpha) * m for m in start]
+        y, good, flags = z, True, []
+        for x, ok in zip(data, finite, strict=True):
+            if ok:
+                y = [z[j] + alpha * x[j] for j in range(3)]
+                z = [x[j] * 0.0 - y[j] * a1 for j in range(3)]
+                good = _largest(y) == col and abs(sign * y[col] - g) <= tolerance
+            flags.append(_INVALID if ok and not good else _VALID)
+        self._gravity = np.array(y)
+        self._counts['gravity_invalid'] += flags.count(_INVALID)
+        self._gravity_finding(y, not good)
+        return np.array(flags, np.uint8)
+
+    def _gravity_finding(self, last: list[float], bad: bool) -> None:
+        """The 'gravity' finding from the newest running mean ``last`` (3 m/s^2) and whether
+        it failed the check."""
+        cfg = self.config
+        col, sign = self._axis
+        if not bad:
             self._findings['gravity'] = Finding('gravity', OK, (
                 f'gravity on {cfg.accel_axis} ({sign * last[col]:.2f} m/s^2)'))
-            return flags
-        k = int(np.argmax(np.abs(last)))
+            return
+        k = _largest(last)
         axis = ('-' if last[k] < 0 else '') + AXES[k]
         if abs(abs(last[k]) - cfg.gravity_mps2) <= GRAVITY_TOLERANCE * cfg.gravity_mps2:
             message = (f'gravity is on {axis} ({last[k]:+.2f} m/s^2 on {AXES[k]}), not on '
@@ -428,14 +494,19 @@ class InputPolicy:
                        f'{last[k]:+.2f} on {AXES[k]}): check the units and mounting, or set '
                        'gravity_mps2 to 0 if the driver removes gravity; outputs are INVALID')
         self._findings['gravity'] = Finding('gravity', ERROR, message)
-        return flags
 
-    def _rate_flags(self, stamps: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    @property
+    def _axis(self) -> tuple[int, float]:
+        """Column (0..2) and sign (+-1.0) of the configured vertical axis."""
+        axis = self.config.accel_axis
+        return AXES.index(axis[-1]), -1.0 if axis.startswith('-') else 1.0
+
+    def _rate_flags(self, stamps: np.ndarray, finite: np.ndarray) -> np.ndarray:
         """INVALID from the sample after a block of RATE_BLOCK stamp steps whose median step
-        disagrees with rate_hz by more than rate_tolerance (until a block agrees)."""
-        cfg = self.config
+        disagrees with rate_hz by more than rate_tolerance (until a block agrees); ``finite``
+        (T,): rows without NaN."""
         flags = np.zeros(stamps.size, np.uint8)
-        idx = np.flatnonzero(np.isfinite(accel).all(axis=1))
+        idx = np.flatnonzero(finite)
         if idx.size == 0:
             return flags
         t = stamps[idx]
@@ -444,26 +515,53 @@ class InputPolicy:
         steps = t - prev
         self._rate_prev = int(t[-1])
         positive = steps > 0
-        cum = np.concatenate([[self._rate_steps.size], self._rate_steps.size
-                              + np.cumsum(positive)])  # open-block step count before each
-        pool = np.concatenate([self._rate_steps, steps[positive]])
-        state = np.full(idx.size, Quality.VALID if self._rate_ok else Quality.INVALID, np.uint8)
+        fill = self._rate_fill
+        cum = np.concatenate([[fill], fill + np.cumsum(positive)])  # open-block step count
+        pool = np.concatenate([self._rate_steps[:fill], steps[positive]])
+        state = np.full(idx.size, _VALID if self._rate_ok else _INVALID, np.uint8)
         for b in range(pool.size // RATE_BLOCK):
-            measured = 1e9 / float(np.median(pool[b * RATE_BLOCK:(b + 1) * RATE_BLOCK]))
-            ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
             done = int(np.searchsorted(cum[1:], (b + 1) * RATE_BLOCK))  # completing sample
-            state[done + 1:] = Quality.VALID if ok else Quality.INVALID
-            self._rate_ok = ok
-            level = OK if ok else ERROR
-            text = (f'measured IMU rate {measured:.6g} Hz, rate_hz {cfg.rate_hz:g}' if ok else
-                    f'measured IMU rate {measured:.6g} Hz differs from rate_hz {cfg.rate_hz:g} '
-                    f'by {abs(measured / cfg.rate_hz - 1) * 100:.3g} %: set rate_hz to '
-                    f'{measured:.6g}; outputs are INVALID until then')
-            self._findings['rate'] = Finding('rate', level, text)
-        self._rate_steps = pool[pool.size // RATE_BLOCK * RATE_BLOCK:]
+            state[done + 1:] = self._rate_block(pool[b * RATE_BLOCK:(b + 1) * RATE_BLOCK])
+        rest = pool[pool.size // RATE_BLOCK * RATE_BLOCK:]
+        self._rate_steps[:rest.size] = rest
+        self._rate_fill = rest.size
         flags[idx] = state
-        self._counts['rate_invalid'] += int((state == Quality.INVALID).sum())
+        self._counts['rate_invalid'] += int((state == _INVALID).sum())
         return flags
+
+    def _rate_flags_small(self, stamps: np.ndarray, finite: list[bool]) -> np.ndarray:
+        """``_rate_flags`` of a few samples, one after the other (steps wrap as int64)."""
+        flags = [0] * len(finite)
+        state = _VALID if self._rate_ok else _INVALID
+        prev, invalid = self._rate_prev, 0
+        for i, (t, ok) in enumerate(zip(stamps.tolist(), finite, strict=True)):
+            if not ok:
+                continue
+            step = (t - (t if prev is None else prev) + (1 << 63)) % (1 << 64) - (1 << 63)
+            prev, flags[i] = t, state
+            invalid += state == _INVALID
+            if step > 0:
+                self._rate_steps[self._rate_fill] = step
+                self._rate_fill += 1
+                if self._rate_fill == RATE_BLOCK:
+                    state, self._rate_fill = self._rate_block(self._rate_steps), 0
+        self._rate_prev = prev
+        self._counts['rate_invalid'] += invalid
+        return np.array(flags, np.uint8)
+
+    def _rate_block(self, steps: np.ndarray) -> int:
+        """The verdict on one full block of RATE_BLOCK stamp steps (ns): the 'rate' finding;
+        returns the quality code of the samples after it."""
+        cfg = self.config
+        measured = 1e9 / float(np.median(steps))
+        ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
+        self._rate_ok = ok
+        text = (f'measured IMU rate {measured:.6g} Hz, rate_hz {cfg.rate_hz:g}' if ok else
+                f'measured IMU rate {measured:.6g} Hz differs from rate_hz {cfg.rate_hz:g} '
+                f'by {abs(measured / cfg.rate_hz - 1) * 100:.3g} %: set rate_hz to '
+                f'{measured:.6g}; outputs are INVALID until then')
+        self._findings['rate'] = Finding('rate', OK if ok else ERROR, text)
+        return _VALID if ok else _INVALID
 
     # ------------------------------------------------------------------ odometry and release
     def _add_odometry(self, t: int, v: float) -> None:
@@ -514,10 +612,16 @@ class InputPolicy:
 
     def _speed_quality(self, speed: np.ndarray, known: np.ndarray) -> np.ndarray:
         cfg = self.config
+        v_deg, v_min, v_max = self.v_degraded, cfg.min_design_speed_mps, cfg.max_speed_mps
+        if speed.size <= SMALL:  # the same comparisons per sample
+            return np.array([max(_INVALID if not k or v < self.v_invalid else _VALID,
+                                 _DEGRADED if v < v_deg or v < v_min or v > v_max else _VALID)
+                             for v, k in zip(np.abs(speed).tolist(), known.tolist(),
+                                             strict=True)], np.uint8)
         v = np.abs(speed)
-        q = np.where(~known | (v < self.v_invalid), Quality.INVALID, Quality.VALID)
-        slow = (v < self.v_degraded) | (v < cfg.min_design_speed_mps) | (v > cfg.max_speed_mps)
-        return np.maximum(q, np.where(slow, Quality.DEGRADED, Quality.VALID)).astype(np.uint8)
+        q = np.where(~known | (v < self.v_invalid), _INVALID, _VALID)
+        slow = (v < v_deg) | (v < v_min) | (v > v_max)
+        return np.maximum(q, np.where(slow, _DEGRADED, _VALID)).astype(np.uint8)
 
     def _release(self, final: bool) -> Output:
         """Push the held samples whose decisions are final into the filters."""
@@ -537,15 +641,15 @@ class InputPolicy:
         self._rest_check(accel, speed, known)
         quality = np.maximum(flags, self._speed_quality(speed, known))
         strict = self.options.wrong_frame_policy == 'reject'
-        before = pipeline.counters.get('accepted', 0)
+        before = pipeline.accepted
         out = pipeline.push(stamps, vertical(accel, self.config.accel_axis), speed,
                             frames.astype(str) if strict else None, quality)
-        self._reject_finding(count, pipeline.counters.get('accepted', 0) - before)
+        self._reject_finding(count, pipeline.accepted - before)
         return self.finish(out)
 
     def _speed_finding(self, speed: np.ndarray, known: np.ndarray) -> None:
-        unknown = int((~known).sum())
-        reverse = int((speed < 0).sum())
+        unknown = known.size - int(np.count_nonzero(known))
+        reverse = int(np.count_nonzero(speed < 0))
         self._counts['speed_unknown'] += unknown
         self._counts['reverse'] += reverse
         timeout = self.options.odom_timeout_s
@@ -568,8 +672,11 @@ class InputPolicy:
         specific force over every sample at rest checks the scale factor (which scales u) and
         the bias (finding 'rest', WARN beyond REST_TOLERANCE; off when gravity_mps2 is 0)."""
         g = self.config.gravity_mps2
-        rest = known & (np.abs(speed) < STANDSTILL_MPS) & np.isfinite(accel).all(axis=1)
-        if g == 0 or not rest.any():
+        rest = known & (np.abs(speed) < STANDSTILL_MPS)
+        if g == 0 or not rest.any():  # moving: no more masks
+            return
+        rest &= np.isfinite(accel).all(axis=1)
+        if not rest.any():
             return
         total, count = self._rest
         self._rest = (total + accel[rest].sum(axis=0), count + int(rest.sum()))
@@ -610,7 +717,7 @@ class InputPolicy:
         if not len(out) or out.quality is None:
             return out
         self._counts.update(quality_counts(out.quality))
-        invalid = np.asarray(out.quality == Quality.INVALID)
+        invalid = np.asarray(out.quality == _INVALID)
         if not invalid.any():
             return out
         u = np.array(out.u_m, dtype=float)

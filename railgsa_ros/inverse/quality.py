@@ -25,7 +25,10 @@ class Quality(IntEnum):
     INVALID = 2
 
 
+_NAMES = tuple(q.name.lower() for q in Quality)  # in code order (Enum lookups are slow)
+
+
 def quality_counts(quality: np.ndarray) -> dict[str, int]:
     """{'valid': n0, 'degraded': n1, 'invalid': n2} of a quality array."""
     counts = np.bincount(np.asarray(quality, dtype=np.int64), minlength=3)
-    return {q.name.lower(): int(counts[q]) for q in Quality}
+    return dict(zip(_NAMES, counts[:3].tolist(), strict=True))
