@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -44,7 +46,7 @@ def test_noise_band_covers_the_noise_free_reconstruction_at_its_level():
     noisy = run_scenario('german-low', 10.0, 60.0, None, NOISY, seed=3)
     clean = run_scenario('german-low', 10.0, 60.0, None, IDEAL, seed=3)
     truth = _reconstruct(clean)
-    config = UncertaintyConfig(inversion=INV, delay_std_s=0.0, scale_std=0.0)
+    config = UncertaintyConfig(inversion=INV, delay_std_s=0.0, scale_std=0.0, clock_std_ppm=0.0)
     band = offline_bands(noisy.stamps_ns, noisy.accel, (noisy.stamps_ns, noisy.speed_mps),
                          config=config, dists=_law(1e-4, ('k_s', 'c')),
                          noise_variance=accel_covariance(NOISY))
@@ -62,7 +64,7 @@ def test_noise_band_covers_the_noise_free_reconstruction_at_its_level():
 def test_sensor_terms_add_in_variance_carry_the_difference_and_floor_degraded():
     """The terms add in variance, the delay term differences across chunks, a DEGRADED sample
     without a gap term gets the floor, the gap term adds in variance instead of the floor."""
-    config = UncertaintyConfig(delay_std_s=1e-3, scale_std=0.01)
+    config = UncertaintyConfig(delay_std_s=1e-3, scale_std=0.01, clock_std_ppm=0.0)
     stamps = np.arange(10, dtype=np.int64) * 2_500_000  # 400 Hz
     mean = 1e-3 * np.sin(np.arange(10.0))
     quality = np.zeros(10, np.uint8)
@@ -87,6 +89,73 @@ def test_sensor_terms_add_in_variance_carry_the_difference_and_floor_degraded():
     with_gap = SensorTerms(config, noise).std(stamps, mean, np.full(10, 20.0), quality, gap)
     np.testing.assert_allclose(with_gap[1:], np.sqrt(free ** 2 + gap[1:] ** 2),
                                rtol=1e-12)
+
+
+def _profile(x: np.ndarray) -> np.ndarray:
+    """A band-limited profile (m) of chainage x (m): D1 wavelengths 4, 7 and 19 m."""
+    return 1e-3 * (np.sin(2 * np.pi * x / 4.0) + 0.6 * np.sin(2 * np.pi * x / 7.0 + 1.0)
+                   + 0.8 * np.sin(2 * np.pi * x / 19.0 + 2.0))
+
+
+def _location_std(config: UncertaintyConfig, stamps: np.ndarray, mean: np.ndarray,
+                  chainage: np.ndarray, cuts=()) -> np.ndarray:
+    """The location term's std (K,) m, streamed in pieces cut at ``cuts``."""
+    terms = SensorTerms(config, None)
+    edges = [0, *cuts, stamps.size]
+    return np.sqrt(np.concatenate([terms.location_variance(stamps[a:b], mean[a:b],
+                                                           chainage[a:b])
+                                   for a, b in itertools.pairwise(edges)]))
+
+
+def test_location_term_is_the_std_of_the_shift_of_a_drifting_clock_and_of_odometry():
+    """Independent truth: the sample k at true time t_k holds u(x_k); its label is the chainage
+    integrated over its stamps. A clock running fast by eps stamps t_k (1 + eps), the label is
+    x_k (1 + eps); an odometry scale error s labels x_k (1 + s). Over 1000 drawn eps ~ N(0,
+    (50 ppm)^2) (constant speed) and s ~ N(0, 1e-4^2) (varying speed; shifts up to 6 cm: first
+    order), the std of the error u(x_k) - u(label) at each sample is the term's std (the term
+    sees only the band mean u(x_k), stamps and chainage; no drift, no odometry error: zero)."""
+    rate, ppm, odo = 400.0, 50.0, 1e-4
+    t = np.arange(16_000) / rate  # 40 s
+    rng = np.random.default_rng(3)
+    for speed, config, law in (
+            (np.full(t.size, 30.0), UncertaintyConfig(delay_std_s=0.0, clock_std_ppm=ppm),
+             1e-6 * ppm),
+            (20.0 + 10.0 * np.sin(t / 7.0),
+             UncertaintyConfig(delay_std_s=0.0, clock_std_ppm=0.0, odometry_scale_std=odo),
+             odo)):
+        x = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) / rate)])
+        stamps = np.rint(t * 1e9).astype(np.int64)
+        std = _location_std(config, stamps, _profile(x), x, cuts=(7, 12_345))[::7]
+        x_k = x[::7]
+        errors = _profile(x_k) - _profile(x_k * (1.0 + law * rng.standard_normal((1000, 1))))
+        far = x_k > 100.0  # where the shift is large enough to score
+        np.testing.assert_allclose(np.sqrt(np.mean(std[far] ** 2)),
+                                   np.sqrt(np.mean(errors[:, far] ** 2)), rtol=0.03)
+        moving = far & (std > 0.2 * std[far].max())
+        ratio = std[moving] / errors[:, moving].std(axis=0)
+        assert np.percentile(np.abs(ratio - 1), 90) < 0.1  # per sample, not just on average
+        inside = np.abs(errors[:, moving]) <= 1.96 * std[moving]
+        assert 0.93 <= inside.mean() <= 0.97  # one draw per run: +- 0.7 % over 1000
+    off = UncertaintyConfig(delay_std_s=0.0, clock_std_ppm=0.0, odometry_scale_std=0.0)
+    assert not np.any(_location_std(off, stamps, _profile(x), x))
+
+
+def test_location_term_streams_the_same_for_any_chunking():
+    """Stamps with jitter and a gap, INVALID (NaN) samples, reverse running, delay, clock and
+    odometry together: one call equals any chunking bit for bit, and the term restarts at
+    nothing across INVALID samples (no difference against a NaN mean)."""
+    rng = np.random.default_rng(5)
+    n = 3000
+    stamps = np.cumsum(rng.integers(2_000_000, 3_000_000, n)).astype(np.int64)
+    stamps[1500:] += 50_000_000  # a 50 ms gap
+    chain = np.cumsum(rng.uniform(-0.02, 0.08, n))
+    mean = _profile(chain)
+    mean[100:140] = np.nan
+    config = UncertaintyConfig(delay_std_s=5e-4, clock_std_ppm=20.0, odometry_scale_std=1e-3)
+    whole = _location_std(config, stamps, mean, chain)
+    for cuts in ((1,), (100, 120, 141, 1500), tuple(range(7, n, 331))):
+        np.testing.assert_array_equal(_location_std(config, stamps, mean, chain, cuts), whole)
+    assert np.all(whole[100:141] == 0) and np.all(np.isfinite(whole)) and whole[141:].any()
 
 
 def test_exceedance_probability_against_monte_carlo():

@@ -245,7 +245,7 @@ class UncertaintyStream:
     def update(self, out: Output) -> Update:
         """Band and closed windows of policy outputs ``out`` (u (P, K), NaN where INVALID)."""
         sensor = self.terms.std(out.stamps_ns, self.design.projector[0] @ out.u_m,
-                                out.speed_mps, out.quality, out.gap_std_m)
+                                out.speed_mps, out.quality, out.gap_std_m, out.chainage_m)
         band = bank_band(self.design, self._quantiles, out, sensor)
         return Update(band, self.windows.push(out.stamps_ns, out.chainage_m, band.mean_m,
                                               out.u_m, out.graded != Quality.INVALID),

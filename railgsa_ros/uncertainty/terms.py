@@ -6,9 +6,19 @@ and taken Gaussian, so their variances add (metres of irregularity):
 
 - sensor noise: white accelerometer noise through the inverse and the band at the sample's speed,
   ``inverse.observability`` (sigma_u(v), from the IMU covariance or ``noise_std_mps2``);
-- sensor delay: a residual delay error tau ~ N(0, delay_std_s^2) shifts the profile in time, an
-  error du/dt * tau: std |du/dt| delay_std_s, du/dt the backward difference of the band mean
-  over the stamps (carried across chunks: the same for any chunking);
+- location (the sample's place on the time/chainage axis, from the position fix at the first
+  sample on): a time error tau of the stamp shifts the profile, an error du/dt tau, and a
+  chainage error xi an error du/dx xi. tau has two independent parts: the residual sensor delay
+  N(0, delay_std_s^2), and the IMU clock's rate error (std clock_std_ppm) times the stamp time T
+  since the first sample, so std(tau)^2 = delay_std_s^2 + (1e-6 clock_std_ppm T)^2; xi is the
+  odometry scale error (std odometry_scale_std) times the distance |c - c_0| from the first
+  sample. Std sqrt(du/dt^2 std(tau)^2 + du/dx^2 std(xi)^2) (first order in the shift: valid
+  while the shift is far below the shortest band wavelength / 2 pi, about 0.5 m for D1; beyond,
+  an over-estimate). du/dt and du/dx are the backward differences of the band mean over the
+  stamps and the chainage, T the sum of the forward stamp steps (carried across chunks: the
+  same for any chunking; zero across an INVALID sample). No smoothing: the band mean is
+  band-passed, its shortest wavelength spans 40 samples at 30 m/s and 400 Hz (15 at 80 m/s), so
+  the difference is within 1 % of the derivative and the noise in it is band-limited the same way;
 - scale factor: a gain error g ~ N(0, scale_std^2) of the accelerometer scales the profile:
   std scale_std |u|;
 - gap filling: the std of the error the model fill of bridged gaps leaves at the sample
@@ -16,7 +26,7 @@ and taken Gaussian, so their variances add (metres of irregularity):
   ``GapFiller.error_variance``), largest next to a gap and decaying with the distance from it;
 - model discrepancy (Kennedy-O'Hagan): the error a reconstruction with the calibrated parameters
   still makes against a surveyed reference beyond all the terms above (unmodelled effects such as
-  the chainage shift of a drifting sensor clock), measured by ``railgsa calibrate`` and written
+  a sensor noisier than its covariance says), measured by ``railgsa calibrate`` and written
   as ``discrepancy_std_m`` into the uncertainty file: a constant std ``discrepancy_std_m``;
 - DEGRADED for another reason (the band design held, noise near the limit): the sample is taken
   to be at least as uncertain as the noisiest VALID one, std max(sigma_u(v), noise_limit_m),
@@ -39,50 +49,69 @@ class SensorTerms:
     """Streams the per-sample std (m) of the sensor terms (module docstring).
 
     ``noise_std_m``: sigma_u(v) of the sensor noise (None or config ``sensor_noise`` false: no
-    noise term). ``std`` keeps the last emitted (stamp, mean) for the delay term's difference.
+    noise term). ``std`` keeps the last emitted (stamp, chainage, mean), the first chainage and
+    the stamp time since the first sample for the location term.
     """
 
     def __init__(self, config: UncertaintyConfig, noise_std_m: NoiseStd | None) -> None:
         self._noise = noise_std_m if config.sensor_noise else None
         self._delay_std_s = config.delay_std_s
+        self._clock_rate = 1e-6 * config.clock_std_ppm
+        self._odometry_std = config.odometry_scale_std
         self._scale_std = config.scale_std
         self._discrepancy_m = config.discrepancy_std_m
         self._gap_floor_m = config.inversion.noise_limit_m
-        self._last: tuple[int, float] | None = None
+        self._last: tuple[int, float, float] | None = None  # stamp ns, chainage m, mean m
+        self._origin_m = 0.0  # chainage of the first sample (the position fix), m
+        self._elapsed_ns = 0  # stamp time of the last sample since the first, ns
 
     def std(self, stamps_ns: np.ndarray, mean_m: np.ndarray, speed_mps: np.ndarray | None,
-            quality: np.ndarray | None, gap_std_m: np.ndarray | None = None) -> np.ndarray:
+            quality: np.ndarray | None, gap_std_m: np.ndarray | None = None,
+            chainage_m: np.ndarray | None = None) -> np.ndarray:
         """Std (K,) m of emitted samples: stamps (K,) ns, band mean (K,) m (NaN where
         INVALID), speed (K,) m/s (None or NaN: no noise term), quality (K,) (None: all
-        VALID) and the gap term (K,) m (None: none)."""
-        mean = np.nan_to_num(np.asarray(mean_m, dtype=float))
+        VALID), the gap term (K,) m (None: none) and chainage (K,) m (None: no odometry
+        term)."""
+        raw = np.asarray(mean_m, dtype=float)
+        mean = np.nan_to_num(raw)
         noise = np.zeros(mean.shape)
         if self._noise is not None and speed_mps is not None and mean.size:
             speed = np.asarray(speed_mps, dtype=float)
             known = np.isfinite(speed)  # unknown speed: an INVALID sample, no noise term
             noise = np.where(known, self._noise(np.where(known, speed, 1.0)), 0.0)
         var = noise ** 2 + (self._scale_std * mean) ** 2 + self._discrepancy_m ** 2
-        if self._delay_std_s > 0 and mean.size:
-            var += (self._delay_std_s * self._rate(np.asarray(stamps_ns), mean)) ** 2
+        if mean.size:
+            var += self.location_variance(np.asarray(stamps_ns), raw, chainage_m)
         gap = np.zeros(mean.shape) if gap_std_m is None else np.asarray(gap_std_m, float)
         var += gap ** 2
         if quality is not None:  # DEGRADED with no gap term: the floor
             degraded = (np.asarray(quality) == Quality.DEGRADED) & (gap == 0)
             floor = np.maximum(noise, self._gap_floor_m)
             var = np.where(degraded, np.maximum(var, floor ** 2), var)
-        if mean.size:
-            self._last = (int(stamps_ns[-1]), float(mean[-1]))
         return np.sqrt(var)
 
-    def _rate(self, stamps_ns: np.ndarray, mean: np.ndarray) -> np.ndarray:
-        """du/dt (K,) m/s by backward difference, the first sample against the carried one."""
+    def location_variance(self, stamps_ns: np.ndarray, mean_m: np.ndarray,
+                          chainage_m: np.ndarray | None) -> np.ndarray:
+        """Variance (K,) m^2 of the location term (module docstring) of samples with stamps
+        (K,) ns, band mean (K,) m (NaN where INVALID) and chainage (K,) m (None: no odometry
+        part); carries the last sample to the next call."""
         t = stamps_ns.astype(np.int64)
-        prev_t = np.concatenate([[self._last[0] if self._last else t[0]], t[:-1]])
-        prev_u = np.concatenate([[self._last[1] if self._last else mean[0]], mean[:-1]])
-        dt = (t - prev_t) * 1e-9
-        return np.divide(mean - prev_u, dt, out=np.zeros(mean.shape), where=dt > 0)
-
-    def reset(self) -> None:
-        """Forget the carried sample (a restart of the stream)."""
-        self._last = None
-
+        chain = np.zeros(t.size) if chainage_m is None else np.asarray(chainage_m, float)
+        if self._last is None:
+            self._last, self._origin_m = (int(t[0]), float(chain[0]), float(mean_m[0])), \
+                float(chain[0])
+        prev_t, prev_c, prev_u = (np.concatenate([[carried], x[:-1]]) for carried, x in
+                                  zip(self._last, (t, chain, mean_m), strict=True))
+        steps = t - prev_t
+        elapsed_ns = self._elapsed_ns + np.cumsum(np.maximum(steps, 0))
+        elapsed_s = elapsed_ns * 1e-9
+        du = np.where(np.isfinite(mean_m) & np.isfinite(prev_u), mean_m - prev_u, 0.0)
+        rate = np.divide(du, steps * 1e-9, out=np.zeros(t.size), where=steps > 0)
+        var = rate ** 2 * (self._delay_std_s ** 2 + (self._clock_rate * elapsed_s) ** 2)
+        if self._odometry_std > 0 and chainage_m is not None:
+            dc = chain - prev_c
+            slope = np.divide(du, dc, out=np.zeros(t.size), where=dc != 0)
+            var += (slope * self._odometry_std * (chain - self._origin_m)) ** 2
+        self._last = (int(t[-1]), float(chain[-1]), float(mean_m[-1]))
+        self._elapsed_ns = int(elapsed_ns[-1])
+        return var
