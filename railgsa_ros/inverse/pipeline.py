@@ -58,6 +58,7 @@ WINDOW_TOLERANCE = 1e-3
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
+SMALL_PUSH = 8  # pieces up to this many samples take the Python-float chainage (bit-identical)
 
 
 @dataclass(frozen=True)
@@ -425,6 +426,15 @@ class InversionPipeline:
             chain = (stamps - stamps[0]).astype(float)
             chain *= speed[0] * 1e-9
             chain += c0 + 0.5 * (v0 + speed[0]) * first * 1e-9
+        elif stamps.size <= SMALL_PUSH:  # the same sum in Python floats (a live push)
+            t, v = stamps.tolist(), speed.tolist()
+            c = c0 + (v0 + v[0]) * first * 0.5e-9
+            sums = [c]
+            for k in range(1, len(t)):
+                step = (t[k] - t[k - 1] + (1 << 63)) % (1 << 64) - (1 << 63)  # int64 wrap
+                c += float(step) * (v[k] + v[k - 1]) * 0.5e-9
+                sums.append(c)
+            chain = np.array(sums)
         else:  # c0, then one step 0.5 (v[k] + v[k-1]) (t[k] - t[k-1]) 1e-9 after the other:
             # a running sum that starts from c0 is the same for any chunking
             steps = np.empty(stamps.size + 1)

@@ -292,15 +292,16 @@ class InputPolicy:
             rows = finite.tolist()
             flags = np.maximum(self._gravity_flags_small(accel, rows),
                                self._rate_flags_small(stamps, rows))
-            newest = [t for t, ok in zip(stamps.tolist(), rows, strict=True) if ok]
+            newest = max((t for t, ok in zip(stamps.tolist(), rows, strict=True) if ok),
+                         default=None)
         else:
             flags = np.maximum(self._gravity_flags(accel, finite),
                                self._rate_flags(stamps, finite))
-            newest = stamps[finite]
+            newest = int(stamps[finite].max()) if finite.any() else None
         arrival = self._received + np.arange(stamps.size)
         self._received += stamps.size
-        if len(newest):
-            self._newest_imu = max(self._newest_imu, int(max(newest)))
+        if newest is not None:
+            self._newest_imu = max(self._newest_imu, newest)
         self._held.extend(stamps, accel, frames, flags, arrival)
         return self._release(final=False)
 
@@ -461,12 +462,12 @@ class InputPolicy:
         a1, tolerance = alpha - 1.0, GRAVITY_TOLERANCE * g
         col, sign = self._axis
         start = data[finite.index(True)] if self._gravity is None else self._gravity.tolist()
-        z = [(1.0 - alpha) * m for m in start]
-        y, good, flags = z, True, []
-        for x, ok in zip(data, finite, strict=True):
+        z0, z1, z2 = ((1.0 - alpha) * m for m in start)
+        y, good, flags = start, True, []
+        for (x0, x1, x2), ok in zip(data, finite, strict=True):
             if ok:
-                y = [z[j] + alpha * x[j] for j in range(3)]
-                z = [x[j] * 0.0 - y[j] * a1 for j in range(3)]
+                y = [z0 + alpha * x0, z1 + alpha * x1, z2 + alpha * x2]
+                z0, z1, z2 = x0 * 0.0 - y[0] * a1, x1 * 0.0 - y[1] * a1, x2 * 0.0 - y[2] * a1
                 good = _largest(y) == col and abs(sign * y[col] - g) <= tolerance
             flags.append(_INVALID if ok and not good else _VALID)
         self._gravity = np.array(y)
