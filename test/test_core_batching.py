@@ -10,7 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from railgsa_ros.inverse import pipeline as pipeline_module
 from railgsa_ros.inverse import policy as policy_module
+from railgsa_ros.inverse import sanitize as sanitize_module
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
@@ -97,7 +99,9 @@ def test_small_batch_paths_give_the_vectorised_result_bit_for_bit(seed, options,
     pieces = batches(np.random.default_rng(seed), s['stamps'].size)
     fast = InputPolicy(cfg, options=options)
     got = feed(fast, s, pieces)
-    monkeypatch.setattr(policy_module, 'SMALL', 0)  # every batch through the numpy path
+    for module, name in ((policy_module, 'SMALL'), (pipeline_module, 'SMALL_PUSH'),
+                         (sanitize_module, 'SMALL')):
+        monkeypatch.setattr(module, name, 0)  # every batch through the numpy paths
     slow = InputPolicy(cfg, options=options)
     same(got, feed(slow, s, pieces))
     assert fast.counters == slow.counters and fast.findings == slow.findings

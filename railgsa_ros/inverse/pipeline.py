@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -58,7 +59,8 @@ WINDOW_TOLERANCE = 1e-3
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
-SMALL_PUSH = 8  # pieces up to this many samples take the Python-float chainage (bit-identical)
+SMALL_PUSH = 8  # pieces up to this many samples take Python-float paths (bit-identical)
+_INVALID = int(Quality.INVALID)
 
 
 @dataclass(frozen=True)
@@ -571,6 +573,16 @@ class InversionPipeline:
                 self._bridged.size == 0 or self._bridged[-1] < first - widest):
             self._bridged = self._bridged[-1:]  # the usual case: nothing to raise
             return quality
+        if quality.size <= SMALL_PUSH and not self._bridged.size:  # per sample, in Python
+            fixed, low, r = self._window
+            vmin, vmax = self.config.min_design_speed_mps, self.config.max_speed_mps
+            codes = []
+            for n, q, v in zip(range(first, last), quality.tolist(), np.abs(speed).tolist(),
+                               strict=True):
+                w = fixed + r * math.ceil(low * vmin / min(max(v, vmin), vmax))
+                codes.append(max(q, _INVALID if n < w + ramp or n + w > self._last_real
+                                 else q))
+            return np.array(codes, np.uint8)
         n = np.arange(first, last)
         w = self.window_half_width(speed)
         out = np.maximum(quality, np.where((n < w + ramp) | (n + w > self._last_real),
