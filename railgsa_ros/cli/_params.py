@@ -10,11 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from railgsa_ros.config import key_list, load_yaml, ros_parameters, section_applies
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.vehicle import PARAM_NAMES
+
+if TYPE_CHECKING:
+    from railgsa_ros.uncertainty.config import UncertaintyConfig
 
 #: node parameters with no offline meaning: accepted and dropped
 TRANSPORT = frozenset({'imu_qos_depth', 'imu_reliability', 'odom_reliability',
@@ -53,6 +56,17 @@ def read_params(path: str | Path, nodes: Sequence[str], known: Collection[str],
         if params.get(name) not in ('', None) and name not in known:
             raise ConfigError(f'{path}: {name}: {hint}')
     return {k: v for k, v in params.items() if k in known}
+
+
+def uncertainty_params(path: str | Path, command: str) -> UncertaintyConfig:
+    """The ``uncertainty_node:`` parameters of params file ``path`` over the defaults (band
+    quantiles, rule, the sensor terms such as ``clock_std_ppm``); the caller sets the
+    inversion."""
+    from railgsa_ros.uncertainty.config import UncertaintyConfig
+
+    known = set(UncertaintyConfig.__dataclass_fields__) - {'inversion'}
+    return UncertaintyConfig.from_mapping(
+        read_params(path, ('uncertainty_node',), known, command), str(path))
 
 
 def _node_names() -> set[str]:

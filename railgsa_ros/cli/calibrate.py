@@ -27,6 +27,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--vehicle', metavar='YAML', help='nominal vehicle (default Table 1)')
     p.add_argument('--uncertainty', metavar='YAML',
                    help='prior law of the parameters (default Table 3)')
+    p.add_argument('--uncertainty-params', metavar='FILE',
+                   help='ROS params file with uncertainty_node: ros__parameters: (the band '
+                        'terms, e.g. clock_std_ppm, delay_std_s, of the band the discrepancy '
+                        'is measured against: give the file the bands run with; default: '
+                        'the node defaults)')
     p.add_argument('--speed', type=float, help='constant speed in m/s, overriding odometry')
     p.add_argument('--imu-topic', default='/imu/data', metavar='T')
     p.add_argument('--odom-topic', default='/odom', metavar='T')
@@ -42,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
 
     from railgsa_ros.bag import read_imu
     from railgsa_ros.calibrate import calibrate, discrepancy_std
+    from railgsa_ros.cli._params import uncertainty_params
     from railgsa_ros.errors import ConfigError, InputError
     from railgsa_ros.fileio import atomic_output
     from railgsa_ros.inverse.config import InversionConfig
@@ -58,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
                           f'{args.parameters!r}')
     vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
     prior = load_uncertainty(args.uncertainty) if args.uncertainty else table3(vehicle)
+    terms = (uncertainty_params(args.uncertainty_params, 'calibrate') if args.uncertainty_params
+             else UncertaintyConfig())  # the band's terms; its inversion is the bag's below
     ref_x, ref_u = load_csv(args.reference)
     stream = read_imu(args.bag, args.imu_topic, args.odom_topic)
     steps = np.diff(stream.stamps_ns)
@@ -80,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                  'covariance': [[float(c) for c in row] for row in cal.covariance]}
     uncertain = {**{n: d for n, d in _prior_entries(prior).items() if n not in names},
                  **cal.uncertainty()}
-    ucfg = UncertaintyConfig(inversion=config, qoi='')
+    ucfg = terms.with_(inversion=config, qoi='')
     band = offline_bands(stream.stamps_ns, stream.accel, (stream.stamps_ns, speed),
                          covariance=stream.covariance, config=ucfg, vehicle=cal.vehicle(),
                          dists={n: parse_parameter(n, d) for n, d in uncertain.items()})

@@ -195,7 +195,7 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
     """The offline driver: the nominal policy (with --grid, the filters in front of the
     chainage grid, ``inverse.grid.grid_config``) and with --bands uncertainty_node's stream for
     the same samples, the odometry scaled as GNSS found it."""
-    from railgsa_ros.cli._params import read_params
+    from railgsa_ros.cli._params import uncertainty_params
     from railgsa_ros.inverse.grid import grid_config
     from railgsa_ros.offline import Driver
     from railgsa_ros.uncertainty import UncertaintyConfig
@@ -203,10 +203,7 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
 
     base = UncertaintyConfig()
     if args.uncertainty_params:  # the inversion comes from --params (equal to the node's)
-        known = set(UncertaintyConfig.__dataclass_fields__) - {'inversion'}
-        base = UncertaintyConfig.from_mapping(read_params(
-            args.uncertainty_params, ('uncertainty_node',), known, 'invert --bands'),
-            args.uncertainty_params)
+        base = uncertainty_params(args.uncertainty_params, 'invert --bands')
     config = grid_config(inp.config) if args.grid is not None else inp.config
     dists = None
     if args.bands:
