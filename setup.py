@@ -35,7 +35,8 @@ setup(
     python_requires='>=3.11',
     install_requires=['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'matplotlib>=3.7',
                       'rosbags>=0.10', 'mcap>=1.1', 'mcap-ros2-support>=0.5',
-                      'duckdb>=1.1', 'dask[distributed]>=2024.8', 'zstandard>=0.20'],
+                      'duckdb>=1.1', 'dask[distributed]>=2024.8', 'zstandard>=0.20',
+                      'threadpoolctl>=3.1'],
     extras_require={
         'ros': ROS,
         'test': ['pytest>=7', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10'],

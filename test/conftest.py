@@ -19,6 +19,9 @@ from typing import Any
 import pytest
 
 from railgsa_ros.system import NodeProcess, isolated_domain
+from railgsa_ros.threads import limit_blas_threads
+
+limit_blas_threads()  # as every entry point does (railgsa_ros/threads.py)
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -34,6 +34,19 @@ def run():
     return run_scenario('german-low', 30.0, 70.0, None, 'bmi088', seed=1, vehicle=TRUE)
 
 
+def _calibrate(run, names=None):
+    """k_s and c (or ``names``) calibrated on STRETCH of ``run`` from PRIOR."""
+    return calibrate(run.stamps_ns, run.accel[:, 2], run.speed_mps, _reference(run),
+                     InversionConfig(rate_hz=run.rate_hz), NOMINAL, PRIOR,
+                     **({} if names is None else {'names': names}))
+
+
+@pytest.fixture(scope='module')
+def calibrated(run):
+    """The default calibration of ``run`` (one fit shared by the tests that read it)."""
+    return _calibrate(run)
+
+
 def _reference(run):
     x = run.chainage_m - run.chainage_m[0]
     keep = (x >= STRETCH[0]) & (x <= STRETCH[1])  # after the filters' warm-up (INVALID)
@@ -50,9 +63,8 @@ def _rest_rmse(run, theta) -> float:
                  run.truth_u_m).rmse
 
 
-def test_calibration_recovers_k_s_and_c_and_the_true_parameter_accuracy(run):
-    cal = calibrate(run.stamps_ns, run.accel[:, 2], run.speed_mps, _reference(run),
-                    InversionConfig(rate_hz=run.rate_hz), NOMINAL, PRIOR)
+def test_calibration_recovers_k_s_and_c_and_the_true_parameter_accuracy(run, calibrated):
+    cal = calibrated
     true = TRUE[[2, 4]]
     std = np.sqrt(np.diag(cal.covariance))
     assert np.all(np.abs(cal.mean - true) < np.maximum(4 * std, 0.02 * true))
@@ -62,13 +74,11 @@ def test_calibration_recovers_k_s_and_c_and_the_true_parameter_accuracy(run):
     assert calibrated <= 1.3 * truth < nominal
 
 
-def _posterior_band(run, noise_variance: float | None, discrepancy_m: float = 0.0):
-    """Calibrate on STRETCH, then the 95 % band of the whole run with the posterior law, the
-    band's accelerometer variance (m/s^2)^2 (None: the policy measures it) and
+def _posterior_band(run, cal, noise_variance: float | None, discrepancy_m: float = 0.0):
+    """The 95 % band of the whole run with the posterior law of ``cal`` (a calibration on
+    STRETCH), the band's accelerometer variance (m/s^2)^2 (None: the policy measures it) and
     ``discrepancy_m``: (band, inversion config, quantiles)."""
     config = InversionConfig(rate_hz=run.rate_hz)
-    cal = calibrate(run.stamps_ns, run.accel[:, 2], run.speed_mps, _reference(run), config,
-                    NOMINAL, PRIOR)
     law = {**PRIOR, **{n: Normal(d['mu'], d['sigma'], lower=0.0)
                        for n, d in cal.uncertainty().items()}}
     ucfg = UncertaintyConfig(inversion=config, qoi='', discrepancy_std_m=discrepancy_m)
@@ -96,28 +106,27 @@ def test_discrepancy_makes_the_calibrated_band_hold_the_truth_on_the_rest():
                      noise_density=4 * imu_spec('bmi088').noise_density)
     extra = run_scenario('german-low', 30.0, 45.0, None, noisy, seed=1, vehicle=TRUE)
     told = float(accel_covariance(imu_spec('bmi088')))
-    band, config, quantiles = _posterior_band(extra, told)
+    cal = _calibrate(extra)
+    band, config, quantiles = _posterior_band(extra, cal, told)
     gap = discrepancy_std(band, _reference(extra), config, quantiles)
     assert _rest_coverage(extra, band) < 0.8
-    widened, *_ = _posterior_band(extra, told, gap)
+    widened, *_ = _posterior_band(extra, cal, told, gap)
     assert 0.90 <= _rest_coverage(extra, widened) <= 0.99
 
 
 def test_discrepancy_is_zero_on_exact_physics():
     """Noise-free exact physics and an exact reference: nothing is left beyond the band."""
     exact = run_scenario('german-low', 30.0, 35.0, None, 'ideal', seed=2, vehicle=TRUE)
-    band, config, quantiles = _posterior_band(exact, None)
+    band, config, quantiles = _posterior_band(exact, _calibrate(exact), None)
     half = np.nanmean(band.upper_m - band.lower_m) / 2
     assert discrepancy_std(band, _reference(exact), config, quantiles) <= 0.01 * half
 
 
-def test_k_us_is_not_identifiable(run):
+def test_k_us_is_not_identifiable(run, calibrated):
     """Fisher information: adding k_us raises the condition number by orders of magnitude and
     its posterior stays an order of magnitude wider (relative) than those of k_s and c."""
-    args = (run.stamps_ns, run.accel[:, 2], run.speed_mps, _reference(run),
-            InversionConfig(rate_hz=run.rate_hz), NOMINAL, PRIOR)
-    two = calibrate(*args)
-    three = calibrate(*args, names=('k_s', 'k_us', 'c'))
+    two = calibrated
+    three = _calibrate(run, ('k_s', 'k_us', 'c'))
     assert three.condition > 100 * two.condition
     rel = np.sqrt(np.diag(three.covariance)) / three.mean
     assert rel[1] > 10 * max(rel[0], rel[2])

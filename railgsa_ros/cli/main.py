@@ -14,6 +14,7 @@ import warnings
 
 from railgsa_ros import __version__, cli
 from railgsa_ros.errors import InputWarning, RailGsaError
+from railgsa_ros.threads import limit_blas_threads
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``railgsa`` with ``argv`` (default: sys.argv[1:]); returns the exit code."""
+    limit_blas_threads()
     with warnings.catch_warnings():
         show = warnings.showwarning
         warnings.showwarning = lambda message, category, *rest, **kw: print(

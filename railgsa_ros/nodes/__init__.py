@@ -23,7 +23,9 @@ def console_main(run: Callable[[list[str] | None], int], args: list[str] | None 
     import sys
 
     from railgsa_ros.errors import RailGsaError
+    from railgsa_ros.threads import limit_blas_threads
 
+    limit_blas_threads()
     try:
         return run(args)
     except RailGsaError as exc:
