@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection
 from contextlib import ExitStack
+import gc
 import sys
 import threading
 from typing import Any
@@ -61,6 +62,8 @@ def run_node(build: Callable[[], Any], args: list[str] | None = None, *,
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
             node = build()
+            gc.freeze()  # the start-up objects leave the cyclic collector: its full passes
+            # over them stalled the 1 kHz data path for ~50 ms (benchmarks/bench_node_latency)
             executor = SingleThreadedExecutor()
             executor.add_node(node)
             if own:
