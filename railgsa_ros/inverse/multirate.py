@@ -135,11 +135,16 @@ class MultirateFir:
         k = self._phases.shape[1]
         q0 = n0 // r
         src = w[:, q0 - k + 1 - (m1 - w.shape[1]):]
-        z = self._interpolate(src, src.shape[1] - k + 1).reshape(w.shape[0], -1)
+        p = n0 - q0 * r  # output phase of the first sample
+        if t_len == 1:  # a live push: that phase's products alone, summed in the same order
+            z = np.cumsum(src[:, :k] * self._phases[p], axis=-1)[:, -1:]
+        else:
+            z = self._interpolate(src, src.shape[1] - k + 1).reshape(w.shape[0], -1)
+            z = z[:, p:p + t_len]
         self.n_total = n0 + t_len
         self._x = hist[:, hist.shape[1] - self._x.shape[1]:]
         self._w = w[:, w.shape[1] - k:]
-        return z[:, n0 - q0 * r:n0 - q0 * r + t_len].astype(float)
+        return z.astype(float)
 
     def _interpolate(self, w: np.ndarray, count: int) -> np.ndarray:
         """Output phases (C, count, R) of low samples: [c, i, p] = sum_j w[c, i + j] phases[p, j],

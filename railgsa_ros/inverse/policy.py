@@ -281,20 +281,27 @@ class InputPolicy:
             raise ConfigError(f'accel: expected shape ({stamps.size}, 3), got {accel.shape}')
         frames = np.full(stamps.size, self.config.frame_id, dtype=object) \
             if frame_ids is None else np.asarray(frame_ids, dtype=object)
+        small = stamps.size <= SMALL
         if covariance is not None:
             cov = np.asarray(covariance, dtype=float).reshape(stamps.size, 9)
-            absent = np.isnan(cov[:, 0]) | (cov[:, 0] == -1.0)
-            accel[absent] = np.nan
-            self._note_variances(cov, absent)
+            if small and self._received >= NOISE_SAMPLES:  # the mask only where needed
+                for i, c in enumerate(cov[:, 0].tolist()):
+                    if c != c or c == -1.0:
+                        accel[i] = np.nan
+            else:
+                absent = np.isnan(cov[:, 0]) | (cov[:, 0] == -1.0)
+                accel[absent] = np.nan
+                self._note_variances(cov, absent)
         self._frame_check(frames)
-        finite = np.isfinite(accel).all(axis=1)
-        if stamps.size <= SMALL:
-            rows = finite.tolist()
-            flags = np.maximum(self._gravity_flags_small(accel, rows),
+        if small:
+            data = accel.tolist()
+            rows = [all(-np.inf < x < np.inf for x in row) for row in data]
+            flags = np.maximum(self._gravity_flags_small(data, rows),
                                self._rate_flags_small(stamps, rows))
             newest = max((t for t, ok in zip(stamps.tolist(), rows, strict=True) if ok),
                          default=None)
         else:
+            finite = np.isfinite(accel).all(axis=1)
             flags = np.maximum(self._gravity_flags(accel, finite),
                                self._rate_flags(stamps, finite))
             newest = int(stamps[finite].max()) if finite.any() else None
@@ -449,15 +456,14 @@ class InputPolicy:
         self._gravity_finding(mean[:, -1].tolist(), not good[-1])
         return flags
 
-    def _gravity_flags_small(self, accel: np.ndarray, finite: list[bool]) -> np.ndarray:
-        """``_gravity_flags`` of a few samples in Python floats: lfilter's recursion (direct
-        form II transposed: y = z + b0 x, z = b1 x - a1 y with b1 = 0) and the same decisions,
-        bit-identical."""
+    def _gravity_flags_small(self, data: list[list[float]], finite: list[bool]) -> np.ndarray:
+        """``_gravity_flags`` of a few samples (rows of accel as lists) in Python floats:
+        lfilter's recursion (direct form II transposed: y = z + b0 x, z = b1 x - a1 y with
+        b1 = 0) and the same decisions, bit-identical."""
         cfg = self.config
         g = cfg.gravity_mps2
         if g == 0 or not any(finite):
             return np.zeros(len(finite), np.uint8)
-        data = accel.tolist()
         alpha = min(1.0, 1.0 / (GRAVITY_TAU_S * cfg.rate_hz))
         a1, tolerance = alpha - 1.0, GRAVITY_TOLERANCE * g
         col, sign = self._axis
@@ -638,8 +644,15 @@ class InputPolicy:
             return self._empty()
         stamps, accel, frames, flags = self._held.pop(count)
         speed, known = self._speeds(stamps)
-        self._speed_finding(speed, known)
-        self._rest_check(accel, speed, known)
+        if count <= SMALL:
+            v, k = speed.tolist(), known.tolist()
+            self._speed_finding(k.count(False), sum(x < 0 for x in v), k[-1])
+            if any(ok and abs(x) < STANDSTILL_MPS for x, ok in zip(v, k, strict=True)):
+                self._rest_check(accel, speed, known)
+        else:
+            self._speed_finding(known.size - int(np.count_nonzero(known)),
+                                int(np.count_nonzero(speed < 0)), bool(known[-1]))
+            self._rest_check(accel, speed, known)
         quality = np.maximum(flags, self._speed_quality(speed, known))
         strict = self.options.wrong_frame_policy == 'reject'
         before = pipeline.accepted
@@ -648,16 +661,16 @@ class InputPolicy:
         self._reject_finding(count, pipeline.accepted - before)
         return self.finish(out)
 
-    def _speed_finding(self, speed: np.ndarray, known: np.ndarray) -> None:
-        unknown = known.size - int(np.count_nonzero(known))
-        reverse = int(np.count_nonzero(speed < 0))
+    def _speed_finding(self, unknown: int, reverse: int, last_known: bool) -> None:
+        """Count the samples of a release without a speed and at negative speed; the 'speed'
+        finding (``last_known``: the newest one has a speed)."""
         self._counts['speed_unknown'] += unknown
         self._counts['reverse'] += reverse
         timeout = self.options.odom_timeout_s
         if not self.options.use_odom:
             self._findings['speed'] = Finding('speed', OK, (
                 f'fixed speed_mps {self.config.speed_mps:g} m/s (use_odom false)'))
-        elif unknown and not known[-1]:
+        elif unknown and not last_known:
             self._findings['speed'] = Finding('speed', WARN, (
                 f'no odometry within odom_timeout_s ({timeout:g} s) of the IMU stamps: outputs '
                 'are INVALID until a speed is known; check the odom topic (offline: --speed)'))
