@@ -231,7 +231,9 @@ class IrregularityNode(StreamNode):
             self._grid_step(lambda g: g.imu(batch.stamps_ns, batch.accel, batch.frame_ids,
                                             batch.covariance))
         outs = [o for o in outs if o is not None and len(o)]
-        return Output.concat(outs) if outs else None
+        if len(outs) < 2:  # the usual: one result, no concatenation
+            return outs[0] if outs else None
+        return Output.concat(outs)
 
     def core_odometry(self, stamps_ns: np.ndarray, speeds_mps: np.ndarray) -> Output | None:
         self._grid_step(lambda g: g.odometry(stamps_ns, speeds_mps))
