@@ -19,16 +19,32 @@ other work on a shared machine), the ratio to the baseline's wall time, the proc
 resident memory (ru_maxrss of ``os.wait4``) with its ratio to the baseline's, and the machine's
 1-minute load average when the row ended (how shared the machine was).
 
+The package is byte-compiled first (``compileall``, as ``pip install`` leaves an installed
+package): an editable install under PYTHONDONTWRITEBYTECODE=1 would otherwise compile the
+package's modules again in every command (0.1-0.2 s of each, measured).
+
+The recorder (``record`` rows, ``--record-minutes``, default 1 and 3): ``imu_sim_node``
+publishes a 1 kHz run live (IMU, odometry, truth), and ``railgsa record`` records /imu/data
+and /odom for the given minutes of wall time, pinned to CPU 0, both in a reserved ROS domain
+with localhost-only discovery. The row gives the recorder's peak RSS, its CPU time (x real
+from CPU: how much faster than real time one core could record), and after the row the
+recorded IMU messages per second and the growth of its resident memory after the first
+30 s (least-squares slope of VmRSS sampled every 2 s, MB per minute): flat memory is a slope
+near 0 and the same peak for both durations.
+
 Usage: python benchmarks/bench_memory.py [--hours 0.5 2 10] [--simulate-hours 0.5]
-                                         [--rows baseline invert review-nominal review]
+                                         [--rows baseline invert review-nominal review record]
+                                         [--record-minutes 1 3]
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 import os
 from pathlib import Path
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -36,7 +52,8 @@ import time
 
 DEFECTS = 'dip@2000:len=6:depth=0.015,dip@5000:len=8:depth=0.02'
 START_NS = 1_700_000_000 * 10**9
-ROWS = ('baseline', 'simulate', 'invert', 'review-nominal', 'review')
+ROWS = ('baseline', 'simulate', 'invert', 'review-nominal', 'review', 'record')
+RECORD_WARM_UP_S = 30.0  # recorder RSS before this is start-up, not growth
 READ_ONLY = ('import sys\nfrom railgsa_ros.bag.reader import iter_imu\n'
              'n = sum(p.stamps_ns.size for p in iter_imu(sys.argv[1]))\nprint(n)\n')
 
@@ -66,19 +83,93 @@ def make_bag(path: Path, hours: float, base_s: float, speed: float) -> Path:
     return path
 
 
-def measure(cmd: list[str]) -> tuple[float, float, float]:
-    """(wall s, CPU s, peak resident MB) of a command run on CPU 0 with one BLAS thread."""
-    env = {**os.environ, 'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1',
-           'MKL_NUM_THREADS': '1', 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+ONE_THREAD = {'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
+              'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+
+
+def measure(cmd: list[str], env: dict[str, str] | None = None,
+            watch: Callable[[int], None] | None = None) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak resident MB) of a command run on CPU 0 with one BLAS thread;
+    ``watch(pid)`` runs while it does (it returns when the process has ended)."""
+    env = {**(os.environ if env is None else env), **ONE_THREAD}
     start = time.perf_counter()
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             preexec_fn=lambda: os.sched_setaffinity(0, {0}))
+    if watch is not None:
+        watch(proc.pid)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - start
     err = proc.stderr.read().decode(errors='replace') if proc.stderr else ''
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f'{" ".join(cmd)} failed: {err.strip()[-400:]}')
     return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
+
+
+def byte_compile() -> None:
+    """Byte-compile the package's modules, as an installed package has them."""
+    import railgsa_ros
+
+    env = {k: v for k, v in os.environ.items() if k != 'PYTHONDONTWRITEBYTECODE'}
+    subprocess.run([sys.executable, '-m', 'compileall', '-q',
+                    str(Path(railgsa_ros.__file__).parent)], env=env, check=True,
+                   stdout=subprocess.DEVNULL)
+
+
+def rss_samples(pid: int, period_s: float = 2.0) -> list[tuple[float, float]]:
+    """(s since the first sample, VmRSS MB) of a process every ``period_s`` until it exits
+    (a zombie has no VmRSS line: the samples end there)."""
+    samples: list[tuple[float, float]] = []
+    start = time.monotonic()
+    while True:
+        try:
+            lines = Path(f'/proc/{pid}/status').read_text().splitlines()
+        except OSError:
+            return samples
+        rss = [int(x.split()[1]) / 1024 for x in lines if x.startswith('VmRSS:')]
+        if not rss:
+            return samples
+        samples.append((time.monotonic() - start, rss[0]))
+        time.sleep(period_s)
+
+
+def record(minutes: float, work: Path) -> tuple[tuple[float, float, float], str]:
+    """The recorder row: ``railgsa record`` of a live 1 kHz ``imu_sim_node`` for ``minutes``;
+    (wall s, CPU s, peak MB) and a note (IMU messages per second, RSS slope after the
+    warm-up)."""
+    import numpy as np
+
+    from railgsa_ros.offline import Source
+    from railgsa_ros.system import reserve_domain, ros_env
+
+    seconds = minutes * 60
+    domain, sock = reserve_domain()
+    env = {**ros_env(), 'ROS_DOMAIN_ID': str(domain)}
+    publisher = subprocess.Popen(
+        [sys.executable, '-m', 'railgsa_ros.nodes.imu_sim_node', '--ros-args',
+         '-p', f'duration_s:={seconds + 120:g}', '-p', 'rate_hz:=1000.0',
+         '-p', 'speed_mps:=30.0'], env={**env, **ONE_THREAD}, stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL)
+    samples: list[tuple[float, float]] = []
+    try:
+        time.sleep(15.0)  # the simulated run is computed at start-up, then published
+        if publisher.poll() is not None:
+            raise SystemExit(f'imu_sim_node ended early (exit {publisher.returncode})')
+        bag = work / 'recorded'
+        cmd = [str(Path(sys.executable).parent / 'railgsa'), 'record', '--out', str(bag),
+               '--topics', '/imu/data', '/odom', '--duration', f'{seconds:g}']
+        row = measure(cmd, env, lambda pid: samples.extend(rss_samples(pid)))
+    finally:
+        publisher.send_signal(signal.SIGINT)
+        publisher.wait(30)
+        if sock is not None:
+            sock.close()
+    count = Source(bag).count('/imu/data')
+    t, rss = np.array(samples).T if samples else (np.zeros(0), np.zeros(0))
+    late = t >= RECORD_WARM_UP_S
+    slope = float(np.polyfit(t[late], rss[late], 1)[0]) * 60 if late.sum() > 2 else np.nan
+    shutil.rmtree(bag)
+    return row, (f'{count / seconds:.0f} IMU msg/s recorded, RSS slope after '
+                 f'{RECORD_WARM_UP_S:g} s {slope:+.2f} MB/min')
 
 
 def command(row: str, bag: Path, work: Path, hours: float, speed: float) -> list[str]:
@@ -98,15 +189,18 @@ def command(row: str, bag: Path, work: Path, hours: float, speed: float) -> list
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--hours', type=float, nargs='+', default=[0.5, 2.0, 10.0])
+    parser.add_argument('--hours', type=float, nargs='*', default=[0.5, 2.0, 10.0])
     parser.add_argument('--simulate-hours', type=float, nargs='*', default=[0.5],
                         help='durations for the simulate rows')
     parser.add_argument('--rows', nargs='+', choices=ROWS, default=list(ROWS))
+    parser.add_argument('--record-minutes', type=float, nargs='*', default=[1.0, 3.0],
+                        help='durations of the record rows (wall time)')
     parser.add_argument('--base-seconds', type=float, default=600.0)
     parser.add_argument('--speed', type=float, default=30.0)
     parser.add_argument('--dir', type=Path, default=None, help='work directory (default tmp)')
     args = parser.parse_args()
     work_root = Path(tempfile.mkdtemp(prefix='bench_memory_', dir=args.dir))
+    byte_compile()
     print(f'{"hours":>6} {"row":<15} {"wall s":>8} {"x real":>7} {"CPU s":>8} {"x real":>7} '
           f'{"/base":>6} {"peak MB":>8} {"/base":>6} {"load":>5}')
     try:
@@ -116,7 +210,7 @@ def main() -> None:
             bag = make_bag(work / 'bag', hours, args.base_seconds, args.speed)
             base: tuple[float, float, float] | None = None
             for row in args.rows:
-                if row == 'simulate' and hours not in args.simulate_hours:
+                if (row == 'simulate' and hours not in args.simulate_hours) or row == 'record':
                     continue
                 wall, cpu, mb = measure(command(row, bag, work, hours, args.speed))
                 if row == 'baseline':
@@ -128,6 +222,12 @@ def main() -> None:
                       f'{seconds / cpu:7.0f} {ratio} {mb:8.0f} {mem} {os.getloadavg()[0]:5.1f}',
                       flush=True)
             shutil.rmtree(work)
+        for minutes in args.record_minutes if 'record' in args.rows else []:
+            (wall, cpu, mb), note = record(minutes, work_root)
+            seconds = minutes * 60
+            print(f'{minutes / 60:6.3g} {"record":<15} {wall:8.1f} {seconds / wall:7.2f} '
+                  f'{cpu:8.1f} {seconds / cpu:7.0f} {"-":>6} {mb:8.0f} {"-":>6} '
+                  f'{os.getloadavg()[0]:5.1f}  {note}', flush=True)
     finally:
         shutil.rmtree(work_root, ignore_errors=True)
 
