@@ -116,3 +116,22 @@ def test_d3_at_low_speed_is_flagged_by_the_noise_floor(speed, expected):
     assert (speed < policy.v_invalid) == (expected == 'invalid')
     assert (policy.v_invalid <= speed < policy.v_degraded) == (expected == 'degraded')
     assert 12.0 < policy.v_invalid < 16.0 and 19.0 < policy.v_degraded < 25.0
+
+
+def test_the_noise_floor_table_is_shared_only_by_the_same_vehicle_and_sensor():
+    """The policies of one run share one sigma_u table (a cache on vehicle, band, order, rate
+    and variance); another vehicle or sensor gets its own, equal to the integral itself."""
+    from railgsa_ros.inverse.observability import SPEED_GRID, NoiseFloor, band_noise_std
+    from railgsa_ros.vehicle import VehicleParams
+
+    theta, var = VehicleParams().as_array(), 3e-4
+    first = NoiseFloor(theta, 'd1', 2, 1000.0, var)
+    assert NoiseFloor(theta.copy(), 'd1', 2, 1000.0, var)._sigma is first._sigma
+    for other, other_var in ((theta * np.array([1.2, 1, 1, 1, 1]), var), (theta, 2 * var)):
+        floor = NoiseFloor(other, 'd1', 2, 1000.0, other_var)
+        np.testing.assert_allclose(floor.sigma_m(SPEED_GRID),
+                                   band_noise_std(other, 'd1', 2, 1000.0, other_var, SPEED_GRID),
+                                   rtol=1e-12)
+        assert not np.allclose(floor.sigma_m(SPEED_GRID), first.sigma_m(SPEED_GRID))
+    with pytest.raises(ValueError):
+        first._sigma[0] = 0.0  # shared: read-only

@@ -15,6 +15,8 @@ reaches half the limit it is DEGRADED. The integral runs on a fixed logarithmic 
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from railgsa_ros.inverse.band import band_edges_hz, bandpass_power
@@ -43,6 +45,17 @@ def band_noise_std(theta: np.ndarray, band: str, order: int, rate_hz: float,
     return out
 
 
+@lru_cache(maxsize=16)
+def _table(theta: tuple[float, ...], band: str, order: int, rate_hz: float,
+           variance: float) -> np.ndarray:
+    """sigma_u on SPEED_GRID, read-only. Cached: the nominal and the bank's input policies of
+    one run (``railgsa review``, ``invert --bands``, the demo) build the same table, 0.1 s each
+    on one core."""
+    table = band_noise_std(np.array(theta), band, order, rate_hz, variance, SPEED_GRID)
+    table.flags.writeable = False
+    return table
+
+
 class NoiseFloor:
     """sigma_u(v) tabulated for one sensor, vehicle and band; ``speed_for(limit)`` inverts it.
 
@@ -53,8 +66,9 @@ class NoiseFloor:
     def __init__(self, theta: np.ndarray, band: str, order: int, rate_hz: float,
                  variance: float) -> None:
         self.band = band
-        self._sigma = None if band == 'none' else band_noise_std(
-            theta, band, order, rate_hz, variance, SPEED_GRID)
+        self._sigma = None if band == 'none' else _table(
+            tuple(np.asarray(theta, float).tolist()), band, order, float(rate_hz),
+            float(variance))
 
     def sigma_m(self, speeds_mps: np.ndarray) -> np.ndarray:
         """sigma_u (m) at |speed| (interpolated log-log on the table; 0 without a band)."""

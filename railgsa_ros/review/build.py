@@ -38,8 +38,9 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     tick('reading', 0.0)
     limits = en13848_limits(options.config.inversion.band, options.limit_end)
     truth = check_truth(options.truth) if options.truth is not None else None
-    total = max(options.source.count(options.imu_topic), 1)
-    run, cfg = run_stream(options.source, options.config, options.vehicle, options.dists,
+    source = options.source  # one Source: it reads the bag's index once
+    total = max(source.count(options.imu_topic), 1)
+    run, cfg = run_stream(source, options.config, options.vehicle, options.dists,
                           limits, options.reference, options.rate_from_bag, options.section_m,
                           progress=lambda done: tick('processing', min(done / total, 1.0)))
     timings['stream'] = time.perf_counter() - start
