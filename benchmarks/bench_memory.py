@@ -168,8 +168,9 @@ def record(minutes: float, work: Path) -> tuple[tuple[float, float, float], str]
     late = t >= RECORD_WARM_UP_S
     slope = float(np.polyfit(t[late], rss[late], 1)[0]) * 60 if late.sum() > 2 else np.nan
     shutil.rmtree(bag)
-    return row, (f'{count / seconds:.0f} IMU msg/s recorded, RSS slope after '
-                 f'{RECORD_WARM_UP_S:g} s {slope:+.2f} MB/min')
+    after = (f'{rss[late][0]:.0f} -> {rss[late][-1]:.0f} MB' if late.any() else 'no samples')
+    return row, (f'{count / seconds:.0f} IMU msg/s recorded; RSS after {RECORD_WARM_UP_S:g} s: '
+                 f'{after}, slope {slope:+.2f} MB/min')
 
 
 def command(row: str, bag: Path, work: Path, hours: float, speed: float) -> list[str]:
