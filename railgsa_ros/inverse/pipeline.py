@@ -577,10 +577,10 @@ class InversionPipeline:
             fixed, low, r = self._window
             vmin, vmax = self.config.min_design_speed_mps, self.config.max_speed_mps
             codes = []
-            for n, q, v in zip(range(first, last), quality.tolist(), np.abs(speed).tolist(),
+            for k, q, v in zip(range(first, last), quality.tolist(), np.abs(speed).tolist(),
                                strict=True):
                 w = fixed + r * math.ceil(low * vmin / min(max(v, vmin), vmax))
-                codes.append(max(q, _INVALID if n < w + ramp or n + w > self._last_real
+                codes.append(max(q, _INVALID if k < w + ramp or k + w > self._last_real
                                  else q))
             return np.array(codes, np.uint8)
         n = np.arange(first, last)
