@@ -67,9 +67,10 @@ from railgsa_ros.nodes.stream_node import OUTPUT_FRAME, StreamNode
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
 NODE_NAME = 'irregularity_node'
-#: batches of a few samples: the policy's cost per call (about 0.3-1 ms) is many samples' worth
-#: (benchmarks/bench_node_latency.py: CPU against latency)
-PERIOD = ParamSpec('process_period_s', 0.005, 'IMU samples are handed to the policy in one '
+#: batches of about two samples at 1 kHz: a call's fixed cost (core ~85 us plus decoding,
+#: publishing and the reader's wake-up) is several samples' worth; 2 ms keeps the CPU below the
+#: relay's (benchmarks/bench_node_latency.py, docs/nodes.md "CPU against latency")
+PERIOD = ParamSpec('process_period_s', 0.002, 'IMU samples are handed to the policy in one '
                    'batch at most this often (less CPU per sample, up to this much more '
                    'latency); 0: as they arrive, s', (0.0, 1.0), read_only=True)
 #: the profile on the chainage grid as a second topic: off by default (a second policy with the
