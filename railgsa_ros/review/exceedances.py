@@ -71,18 +71,7 @@ def levels(magnitude: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     return np.max(np.where(passed, np.arange(1, 4), 0), axis=1, initial=0)
 
 
-_FIELDS = ('index', 'chainage', 'stamp', 'u', 'far', 'lvl_c', 'lvl_near', 'lvl_far', 'lower',
-           'upper', 'speed', 'al', 'il', 'ial', 'p_al', 'p_il', 'p_ial')
 _LIMITS = ('al', 'il', 'ial')
-
-
-def beyond_probability(design: Design, bank_u_m: np.ndarray, thresholds: np.ndarray,
-                       sensor_std_m: np.ndarray | None = None) -> np.ndarray:
-    """Probability (K, 3) that |u| passes each limit (K, 3) m, from bank outputs (P, K) and the
-    band's sensor std (K,) m: ``uncertainty.exceedance.exceedance_probability`` (the germ
-    samples the band's quantiles come from, with the sensor terms)."""
-    return np.stack([exceedance_probability(design, bank_u_m, thresholds[:, j], sensor_std_m)
-                     for j in range(thresholds.shape[1])], axis=1)
 
 
 class ExceedanceTracker:
@@ -119,16 +108,15 @@ class ExceedanceTracker:
                 'upper': (u if upper_m is None else np.asarray(upper_m, float))[sel],
                 'speed': np.asarray(speed_mps, float)[sel],
                 **{k: thresholds[sel, j] for j, k in enumerate(_LIMITS)}}
-        prob = np.full((sel.size, 3), np.nan)
-        if self.design is not None and bank_u_m is not None and sel.size:
-            prob = beyond_probability(self.design, bank_u_m[:, sel], thresholds[sel],
-                                      None if sensor_std_m is None else sensor_std_m[sel])
-        cols.update({f'p_{k}': prob[:, j] for j, k in enumerate(_LIMITS)})
+        if self.design is not None and bank_u_m is not None:  # for the probability at the peak
+            cols['bank'] = np.asarray(bank_u_m, float)[:, sel].T  # (n, P)
+            cols['sensor'] = np.zeros(sel.size) if sensor_std_m is None else \
+                np.asarray(sensor_std_m, float)[sel]
         self._seen += u.size
         opened = self._open
         held = 0 if opened is None else opened['index'].size
         if opened is not None and held:
-            cols = {k: np.concatenate([opened[k], cols[k]]) for k in _FIELDS}
+            cols = {k: np.concatenate([opened[k], cols[k]]) for k in cols}
         if cols['index'].size == 0:
             return []
         idx = cols['index']
@@ -136,7 +124,7 @@ class ExceedanceTracker:
             (np.diff(np.sign(cols['u'])) != 0)
         split[:max(held - 1, 0)] = False  # the held samples are one run
         starts = np.concatenate([[0], np.flatnonzero(split) + 1])
-        closed = [_record({k: v[a:b] for k, v in cols.items()})
+        closed = [_record({k: v[a:b] for k, v in cols.items()}, self.design)
                   for a, b in pairwise(starts)]
         last = {k: v[starts[-1]:] for k, v in cols.items()}
         self._open = {k: v[_deciding(last)] for k, v in last.items()}
@@ -145,7 +133,7 @@ class ExceedanceTracker:
     def close(self) -> list[Exceedance]:
         """The exceedance still open at the end of the run (if any)."""
         last, self._open = self._open, None
-        return [] if last is None else [_record(last)]
+        return [] if last is None else [_record(last, self.design)]
 
 
 def _peak_key(run: dict[str, np.ndarray]) -> np.ndarray:
@@ -160,19 +148,30 @@ def _deciding(run: dict[str, np.ndarray]) -> np.ndarray:
     return np.unique([0, run['u'].size - 1, *(int(np.argmax(k)) for k in keys)])
 
 
-def _record(run: dict[str, np.ndarray]) -> Exceedance:
-    """The exceedance of one run of samples beyond a limit."""
+def _record(run: dict[str, np.ndarray], design: Design | None = None) -> Exceedance:
+    """The exceedance of one run of samples beyond a limit; its probability (with bank outputs
+    ``run['bank']`` and a design, else NaN) is that of |u| passing its limit at its peak
+    (``uncertainty.exceedance.exceedance_probability``: the germ samples the band's quantiles
+    come from, with the sensor terms).
+
+    Why at the record only, not at every sample beyond a limit: the record uses the peak's
+    alone, and with a wide band (the location term grows with the run) most samples are beyond
+    one: computing each one's (1024 germ samples, 3 limits) made a 2 h review 4x slower."""
     worst_c, worst_near, worst_far = (int(run[k].max()) for k in ('lvl_c', 'lvl_near', 'lvl_far'))
     level = worst_c if worst_c > 0 else worst_far
     confidence = ('possible' if worst_c == 0 else
                   'certain' if worst_near >= worst_c else 'likely')
     k = int(np.argmax(_peak_key(run)))
     limit = run[_LIMITS[level - 1]][k]
+    probability = np.nan
+    if design is not None and 'bank' in run:
+        probability = exceedance_probability(design, run['bank'][k][:, None], limit,
+                                             run['sensor'][k])[0]
     return Exceedance(LEVELS[level - 1], confidence, float(run['chainage'][0]),
                       float(run['chainage'][-1]), float(run['chainage'][k]),
                       int(run['stamp'][k]), float(run['u'][k]), float(run['lower'][k]),
                       float(run['upper'][k]), float(limit), float(abs(run['speed'][k]) * 3.6),
-                      float(run[f'p_{_LIMITS[level - 1]}'][k]))
+                      float(probability))
 
 
 def find_exceedances(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,
