@@ -39,17 +39,21 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+import warnings
 
 import numpy as np
 from numpy.polynomial import polynomial
 
 from railgsa_ros.bag.messages import ODOMETRY, ODOMETRY_FIELDS
 from railgsa_ros.bag.reader import NAV_SAT_FIX, GnssFixes, TopicData, iter_topics
-from railgsa_ros.errors import ConfigError
+from railgsa_ros.errors import ConfigError, InputWarning
 from railgsa_ros.geo import enu_to_geodetic, geodetic_to_enu
 
 DIRECTIONS = ('increasing', 'decreasing')
 SMOOTH_M = 50.0  # width of the GNSS track smoothing, m of chainage
+#: a GNSS odometry scale further than this from 1 is no wheel-diameter error (tenths of a
+#: percent): odometry in other units, or the wrong wheel; the run is corrected, with a warning
+SCALE_WARN = 0.05
 CLIP = 4.0  # residuals beyond CLIP robust standard deviations are left out of the scale fit
 CLIP_ROUNDS = 3
 
@@ -264,6 +268,15 @@ def estimate_scale(odom_m: np.ndarray, east: np.ndarray, north: np.ndarray,
                          f'{np.ptp(c):.0f} m')
 
 
+def warn_scale(bag: Path, scale: float) -> None:
+    """An InputWarning when the GNSS odometry scale is further than SCALE_WARN from 1."""
+    if abs(scale - 1.0) > SCALE_WARN:
+        hint = ' (odometry in km/h?)' if abs(scale * 3.6 - 1.0) < SCALE_WARN else ''
+        warnings.warn(InputWarning(f'{bag}: GNSS says the odometry scale is {scale:.4f}, not a '
+                                   f'wheel-diameter error{hint}: corrected, check the '
+                                   'odometry'), stacklevel=2)
+
+
 def gnss_pass(bag: Path, odom_topic: str, gnss_topic: str, start_ns: int,
               reference: Reference) -> Location:
     """Read the odometry and the fixes of a bag (no IMU) and locate the run; a Location
@@ -291,6 +304,9 @@ def gnss_pass(bag: Path, odom_topic: str, gnss_topic: str, start_ns: int,
     odom_m[ids[ids >= 0]] = chainage[ids >= 0] - chainage[ids == -1][0]
     good = (fix.status >= 0) & np.isfinite(fix.latitude_deg) & np.isfinite(fix.longitude_deg)
     rejected = int(np.sum(~good))
+    if rejected:
+        warnings.warn(InputWarning(f'{bag}: {rejected} of {len(fix)} GNSS fixes left out (no '
+                                   'fix or a non-finite position)'), stacklevel=2)
     if not good.any():
         return Location(reference, OdometryScale(rejected=rejected, note='no GNSS fix'))
     origin = (float(fix.latitude_deg[good][0]), float(fix.longitude_deg[good][0]))
@@ -300,6 +316,7 @@ def gnss_pass(bag: Path, odom_topic: str, gnss_topic: str, start_ns: int,
         return Location(reference, OdometryScale(fixes=int(good.sum()), rejected=rejected,
                                                  note=f'GNSS fixes over less than {SMOOTH_M:g} m'))
     scale = estimate_scale(odom_m[good], east, north, splines, rejected)
+    warn_scale(bag, scale.value)
     x, e_spline, n_spline = splines
     return Location(reference, scale, Track(origin, scale.value, float(x[0]), float(x[-1]),
                                             e_spline, n_spline))

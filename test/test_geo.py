@@ -164,3 +164,21 @@ def test_correlated_gnss_noise_has_its_correlation_and_variance():
     for e, sigma in ((err, 3.0), (cross, 3.0), (alt, 5.0)):
         assert np.corrcoef(e[1:], e[:-1])[0, 1] == pytest.approx(phi, abs=4 / np.sqrt(n_eff))
         assert e.std() == pytest.approx(sigma, rel=4 / np.sqrt(2 * n_eff))
+
+
+def test_odometry_scale_far_from_one_is_warned_with_a_km_per_h_hint():
+    """A wheel-diameter error (tenths of a percent) passes silently; km/h odometry (scale
+    1 / 3.6) and a 20 % error are warned, only the first with the km/h hint."""
+    import warnings
+
+    from railgsa_ros.errors import InputWarning
+    from railgsa_ros.location import warn_scale
+
+    def said(scale: float) -> list[str]:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            warn_scale(Path('bag'), scale)
+        return [str(w.message) for w in caught if issubclass(w.category, InputWarning)]
+    assert said(1.004) == [] and said(0.996) == []
+    assert len(said(1 / 3.6)) == 1 and 'km/h' in said(1 / 3.6)[0]
+    assert len(said(1.2)) == 1 and 'km/h' not in said(1.2)[0]
