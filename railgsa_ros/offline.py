@@ -28,8 +28,10 @@ import numpy as np
 from railgsa_ros.bag import ImuStream, open_bag
 from railgsa_ros.bag.reader import iter_imu
 from railgsa_ros.errors import InputError
+from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
+from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.location import Location, Reference, gnss_pass
 from railgsa_ros.samples import split
 from railgsa_ros.uncertainty import (
@@ -79,13 +81,14 @@ def peek(pieces: Iterable[ImuStream]) -> tuple[ImuStream, Iterator[ImuStream]]:
 
 
 def nominal_rate_hz(piece: ImuStream, source: Source) -> float:
-    """IMU rate (Hz) from the median positive stamp step of a piece (the first one: 65 s at
-    1 kHz); InputError when it has no two distinct stamps."""
+    """IMU rate (Hz) of a piece (the first one: 65 s at 1 kHz): the periods counted from the
+    median step's over their time (``inverse.rate``: robust to jitter and lost samples);
+    InputError when it has no two distinct stamps."""
     steps = np.diff(piece.stamps_ns)
     steps = steps[steps > 0]
     if steps.size == 0:
         raise InputError(f'{source.bag}: {source.imu_topic} needs at least two distinct stamps')
-    return 1e9 / float(np.median(steps))
+    return count_steps(steps, float(np.median(steps)), InversionConfig().gap_factor).rate_hz
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, vertical
+from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.inverse.score import score
 from railgsa_ros.scenario import run_scenario
 
@@ -61,7 +62,8 @@ def test_csv_is_the_streaming_pipeline(bag, tmp_path):
     out = tmp_path / 'u.csv'
     assert main(['invert', str(path), '--csv', str(out), '--speed', '25']) == 0
     _, data = read_csv(out)
-    rate = 1e9 / np.median(np.diff(run.stamps_ns))  # the CLI takes the rate from the bag
+    steps = np.diff(run.stamps_ns)  # the CLI takes the rate from the bag's stamps
+    rate = count_steps(steps, float(np.median(steps)), 3.0).rate_hz
     # the policy's noise: the IMU-reported variance (it shapes the bridging of dropouts)
     pipe = InversionPipeline(InversionConfig(rate_hz=rate, speed_mps=25.0), None,
                              run.accel_covariance, stuck_s=0.5)

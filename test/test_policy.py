@@ -354,3 +354,30 @@ def test_noise_is_the_median_of_the_first_reported_variances_skipping_absent_and
     fallback.imu(stamps, accel, None, silent)
     assert fallback.noise_variance == pytest.approx(cfg.noise_std_mps2 ** 2, rel=1e-12)
     assert 'noise_std_mps2' in fallback.noise_source
+
+
+def test_samples_lost_between_close_stamps_are_counted_and_degrade_not_valid():
+    """Every tenth IMU sample missing (what BEST_EFFORT loss looks like: two-period steps,
+    shorter than a gap): the record would close up around them, so the policy counts them as
+    lost, keeps the rate right, and publishes nothing VALID after the first block; the same run
+    without the loss stays VALID with no loss counted."""
+    run = run_scenario('german-low', 20.0, 8.0, None, 'adxl355', seed=5)
+    keep = np.arange(run.stamps_ns.size) % 10 != 5
+    results = {}
+    for name, mask in (('lossy', keep), ('clean', np.ones_like(keep))):
+        policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+        policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
+        out = Output.concat([policy.imu(run.stamps_ns[mask], run.accel[mask], None,
+                                        _covariance(run)[mask]), policy.flush()])
+        results[name] = (out, policy.counters, {f.key: f for f in policy.findings}['rate'])
+    out, counters, finding = results['lossy']
+    blocks = keep.sum() // 512
+    assert abs(counters['lost'] - (blocks - 0) * 512 / 9) < 0.1 * blocks * 512 / 9 + 5
+    assert finding.level == WARN and 'lost' in finding.message
+    measured = float(finding.message.split('measured IMU rate ')[1].split(' Hz')[0])
+    assert abs(measured / run.rate_hz - 1) < 0.005  # the sensor's rate, not 900 Hz
+    assert counters.get('rate_invalid', 0) == 0
+    assert not np.any(out.quality[600:] == Quality.VALID)
+    out, counters, finding = results['clean']
+    assert counters.get('lost', 0) == 0 and finding.level == OK
+    assert np.sum(out.quality[600:] == Quality.VALID) > 1000

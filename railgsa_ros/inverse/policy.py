@@ -43,6 +43,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
 from railgsa_ros.inverse.quality import Quality, quality_counts
+from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.inverse.sanitize import REASONS, SPEED_LIMIT_MPS, frame_mask
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
@@ -201,7 +202,7 @@ class InputPolicy:
         self._rate_steps = np.zeros(RATE_BLOCK, np.int64)  # stamp steps of the open rate block
         self._rate_fill = 0  # how many of them are filled
         self._rate_prev: int | None = None  # last finite stamp seen
-        self._rate_ok = True
+        self._rate_state = _VALID  # quality code after the newest rate block
         self._reject_run = 0  # samples pushed since the last accepted one
         self._start_chainage = 0.0
         self._rest = (np.zeros(3), 0)  # sum (3,) m/s^2 and count of the samples at rest
@@ -229,7 +230,8 @@ class InputPolicy:
     def counters(self) -> dict[str, int]:
         """Counts by reason: the sanitiser's and the pipeline's (over every rebuild), plus
         odom_received, odom_nan, odom_implausible, odom_out_of_order, odom_time_reset,
-        speed_unknown, reverse, gravity_invalid, rate_invalid, wrong_frame_accepted and the
+        speed_unknown, reverse, gravity_invalid, rate_invalid, lost (samples missing between
+        stamps closer than a gap), wrong_frame_accepted and the
         emitted outputs by quality: valid, degraded, invalid."""
         live = Counter(self.pipeline.counters) if self.pipeline is not None else Counter()
         return dict(self._retired + live + self._counts)
@@ -525,7 +527,7 @@ class InputPolicy:
         fill = self._rate_fill
         cum = np.concatenate([[fill], fill + np.cumsum(positive)])  # open-block step count
         pool = np.concatenate([self._rate_steps[:fill], steps[positive]])
-        state = np.full(idx.size, _VALID if self._rate_ok else _INVALID, np.uint8)
+        state = np.full(idx.size, self._rate_state, np.uint8)
         for b in range(pool.size // RATE_BLOCK):
             done = int(np.searchsorted(cum[1:], (b + 1) * RATE_BLOCK))  # completing sample
             state[done + 1:] = self._rate_block(pool[b * RATE_BLOCK:(b + 1) * RATE_BLOCK])
@@ -539,7 +541,7 @@ class InputPolicy:
     def _rate_flags_small(self, stamps: np.ndarray, finite: list[bool]) -> np.ndarray:
         """``_rate_flags`` of a few samples, one after the other (steps wrap as int64)."""
         flags = [0] * len(finite)
-        state = _VALID if self._rate_ok else _INVALID
+        state = self._rate_state
         prev, invalid = self._rate_prev, 0
         for i, (t, ok) in enumerate(zip(stamps.tolist(), finite, strict=True)):
             if not ok:
@@ -558,17 +560,30 @@ class InputPolicy:
 
     def _rate_block(self, steps: np.ndarray) -> int:
         """The verdict on one full block of RATE_BLOCK stamp steps (ns): the 'rate' finding;
-        returns the quality code of the samples after it."""
+        returns the quality code of the samples after it: INVALID at another rate, DEGRADED
+        after samples lost without a gap (the record closes up around them: its time axis is
+        compressed), counted as ``lost`` (:mod:`railgsa_ros.inverse.rate`)."""
         cfg = self.config
-        measured = 1e9 / float(np.median(steps))
+        counted = count_steps(steps, 1e9 / cfg.rate_hz, cfg.gap_factor)
+        # with lost samples the median step is pulled up (2 % at one in ten), so the counted
+        # rate is measured; without, the median, whose scatter under heavy jitter (0.2 ms) is
+        # half the counted rate's (a step rounded to the wrong count shifts every later one)
+        losing = counted.lost_significant
+        measured = counted.rate_hz if losing else 1e9 / float(np.median(steps))
         ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
-        self._rate_ok = ok
+        lost = counted.lost if ok and losing else 0
+        self._counts['lost'] += lost
         text = (f'measured IMU rate {measured:.6g} Hz, rate_hz {cfg.rate_hz:g}' if ok else
                 f'measured IMU rate {measured:.6g} Hz differs from rate_hz {cfg.rate_hz:g} '
                 f'by {abs(measured / cfg.rate_hz - 1) * 100:.3g} %: set rate_hz to '
                 f'{measured:.6g}; outputs are INVALID until then')
-        self._findings['rate'] = Finding('rate', OK if ok else ERROR, text)
-        return _VALID if ok else _INVALID
+        if lost:
+            text += (f'; {lost} samples lost between stamps closer than a gap (steps of 2 or '
+                     'more periods): outputs DEGRADED until a block has none')
+        self._findings['rate'] = Finding('rate', ERROR if not ok else WARN if lost else OK,
+                                         text)
+        self._rate_state = _INVALID if not ok else _DEGRADED if lost else _VALID
+        return self._rate_state
 
     # ------------------------------------------------------------------ odometry and release
     def _add_odometry(self, t: int, v: float) -> None:
