@@ -55,10 +55,12 @@ class UncertaintyConfig:
                                   's: adds |du/dt| * delay_std_s to the band', (0.0, 1.0))
     scale_std: float = _p(2e-3, 'standard uncertainty of the accelerometer scale factor '
                                 '(relative): adds scale_std * |u| to the band', (0.0, 1.0))
-    clock_std_ppm: float = _p(50.0, 'standard uncertainty of the IMU stamp clock rate, ppm '
-                                    '(bmi088 preset 50, adxl355 20): the stamps\' time error '
-                                    'grows as clock_std_ppm 1e-6 x the time since the first '
-                                    'sample; adds |du/dt| x that to the band', (0.0, 1e5))
+    clock_std_ppm: float = _p(0.0, 'standard uncertainty of the IMU stamp clock rate, ppm, '
+                                   'when the stamps come from the sensor\'s own free-running '
+                                   'clock (bmi088 preset 50, adxl355 20; 0: host-stamped, '
+                                   'as ROS drivers do): the stamps\' time error '
+                                   'grows as clock_std_ppm 1e-6 x the time since the first '
+                                   'sample; adds |du/dt| x that to the band', (0.0, 1e5))
     odometry_scale_std: float = _p(0.0, 'standard uncertainty of the odometry scale (relative; '
                                         'an uncorrected wheel diameter: tenths of a percent; 0: '
                                         'chainage exact or corrected): the chainage error grows '
