@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 import warnings
@@ -18,6 +19,7 @@ from railgsa_ros.threads import limit_blas_threads
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141  #: 128 + SIGPIPE, as a shell tool ended by ``| head``
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_USAGE
         except KeyboardInterrupt:
             return EXIT_INTERRUPTED
+        except BrokenPipeError:  # the reader of our output left (``railgsa bode | head``)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no flush error
+            return EXIT_BROKEN_PIPE
 
 
 if __name__ == '__main__':
