@@ -240,7 +240,7 @@ def test_atomic_output_replaces_or_keeps_the_old_output(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == [target]
 
 
-def test_output_cut_by_a_pipe_ends_quietly() -> None:
+def test_output_cut_by_a_pipe_ends_quietly(tmp_path: Path) -> None:
     """``railgsa bode | head -1``: the reader has left (here before the first write), the
     command ends with 141 (128 + SIGPIPE) and no traceback."""
     import os
@@ -250,8 +250,9 @@ def test_output_cut_by_a_pipe_ends_quietly() -> None:
     read, write = os.pipe()
     os.close(read)
     try:
-        proc = subprocess.run([sys.executable, '-m', 'railgsa_ros.cli.main', 'bode'],
-                              stdout=write, stderr=subprocess.PIPE, timeout=60)
+        proc = subprocess.run([sys.executable, '-m', 'railgsa_ros.cli.main', 'bode', '--out',
+                               str(tmp_path / 'bode.png')], stdout=write,
+                              stderr=subprocess.PIPE, timeout=60)
     finally:
         os.close(write)
     assert proc.returncode == 141 and b'Traceback' not in proc.stderr, proc.stderr
