@@ -10,24 +10,30 @@ import pytest
 
 from railgsa_ros.threads import BLAS_ENV
 
-PROBE = ('import numpy, scipy.linalg\nfrom threadpoolctl import threadpool_info\n'
+#: BLAS threads after limit_blas_threads, called after ('first') or before numpy and scipy load
+PROBE = ('import sys\n'
          'from railgsa_ros.threads import limit_blas_threads\n'
+         'if sys.argv[1] == "first": import numpy, scipy.linalg\n'
          'limit_blas_threads()\n'
+         'import numpy, scipy.linalg\n'
+         'from threadpoolctl import threadpool_info\n'
          'print(max(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"))')
 
 
-def blas_threads(**env: str) -> int:
-    """BLAS threads of a fresh process after limit_blas_threads, with ``env`` added."""
+def blas_threads(order: str, **env: str) -> int:
+    """BLAS threads of a fresh process after limit_blas_threads, called with numpy and scipy
+    loaded ('first') or not yet ('later'), with ``env`` added."""
     clean = {k: v for k, v in os.environ.items() if k not in BLAS_ENV}
-    out = subprocess.run([sys.executable, '-c', PROBE], env={**clean, **env}, check=True,
-                         capture_output=True, text=True).stdout
+    out = subprocess.run([sys.executable, '-c', PROBE, order], env={**clean, **env},
+                         check=True, capture_output=True, text=True).stdout
     return int(out.strip())
 
 
 def test_one_blas_thread_by_default_and_the_users_choice_kept() -> None:
-    assert blas_threads() == 1
-    if (os.cpu_count() or 1) > 1:
-        assert blas_threads(OPENBLAS_NUM_THREADS='2') == 2
+    for order in ('first', 'later'):
+        assert blas_threads(order) == 1, order
+        if (os.cpu_count() or 1) > 1:
+            assert blas_threads(order, OPENBLAS_NUM_THREADS='2') == 2, order
 
 
 @pytest.mark.parametrize('entry', ['cli', 'node'])
