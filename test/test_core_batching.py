@@ -99,7 +99,7 @@ def test_small_batch_paths_give_the_vectorised_result_bit_for_bit(seed, options,
     pieces = batches(np.random.default_rng(seed), s['stamps'].size)
     fast = InputPolicy(cfg, options=options)
     got = feed(fast, s, pieces)
-    for module, name in ((policy_module, 'SMALL'), (pipeline_module, 'SMALL_PUSH'),
+    for module, name in ((policy_module, 'SMALL'), (pipeline_module, 'SMALL'),
                          (sanitize_module, 'SMALL')):
         monkeypatch.setattr(module, name, 0)  # every batch through the numpy paths
     slow = InputPolicy(cfg, options=options)

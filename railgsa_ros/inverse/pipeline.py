@@ -49,7 +49,7 @@ from railgsa_ros.inverse.multirate import (
     rolloff,
 )
 from railgsa_ros.inverse.quality import Quality
-from railgsa_ros.inverse.sanitize import SPEED_LIMIT_MPS, Clean, InputSanitizer
+from railgsa_ros.inverse.sanitize import SMALL, SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
@@ -59,7 +59,6 @@ WINDOW_TOLERANCE = 1e-3
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
-SMALL_PUSH = 8  # pieces up to this many samples take Python-float paths (bit-identical)
 _INVALID = int(Quality.INVALID)
 
 
@@ -428,7 +427,7 @@ class InversionPipeline:
             chain = (stamps - stamps[0]).astype(float)
             chain *= speed[0] * 1e-9
             chain += c0 + 0.5 * (v0 + speed[0]) * first * 1e-9
-        elif stamps.size <= SMALL_PUSH:  # the same sum in Python floats (a live push)
+        elif stamps.size <= SMALL:  # the same sum in Python floats (a live push)
             t, v = stamps.tolist(), speed.tolist()
             c = c0 + (v0 + v[0]) * first * 0.5e-9
             sums = [c]
@@ -573,7 +572,7 @@ class InversionPipeline:
                 self._bridged.size == 0 or self._bridged[-1] < first - widest):
             self._bridged = self._bridged[-1:]  # the usual case: nothing to raise
             return quality
-        if quality.size <= SMALL_PUSH and not self._bridged.size:  # per sample, in Python
+        if quality.size <= SMALL and not self._bridged.size:  # per sample, in Python
             fixed, low, r = self._window
             vmin, vmax = self.config.min_design_speed_mps, self.config.max_speed_mps
             codes = []

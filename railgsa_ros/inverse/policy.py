@@ -44,7 +44,7 @@ from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
 from railgsa_ros.inverse.quality import Quality, quality_counts
 from railgsa_ros.inverse.rate import count_steps
-from railgsa_ros.inverse.sanitize import REASONS, SPEED_LIMIT_MPS, frame_mask
+from railgsa_ros.inverse.sanitize import REASONS, SMALL, SPEED_LIMIT_MPS, frame_mask
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
 OK, WARN, ERROR = 0, 1, 2  #: finding levels (diagnostic_msgs/DiagnosticStatus levels)
@@ -56,10 +56,6 @@ RATE_BLOCK = 512  #: stamp steps per rate measurement (median: robust to dropout
 REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
 REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
-#: batches up to this many samples take the scalar paths (Python floats, the same operations in
-#: the same order as the vectorised ones: bit-identical; a live push is 1-5 samples, where the
-#: fixed cost of some 20 numpy calls each was most of the policy's cost)
-SMALL = 8
 AXES = 'xyz'
 _VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
 

@@ -23,7 +23,11 @@ import numpy as np
 #: fastest plausible rail vehicle (m/s, 720 km/h): odometry beyond it is a unit or data error
 SPEED_LIMIT_MPS = 200.0
 REASONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
-SMALL = 8  # chunks up to this many samples are checked in Python floats (bit-identical)
+#: chunks up to this many samples take the scalar paths of the sanitiser, the pipeline and the
+#: policy (Python floats, the same operations in the same order as the vectorised ones:
+#: bit-identical; a live push is 1-5 samples, where the fixed cost of numpy calls was most of
+#: the cost)
+SMALL = 8
 
 
 def frame_mask(frame_ids: np.ndarray | None, expected: str) -> np.ndarray | None:
