@@ -39,7 +39,7 @@ setup(
                       'threadpoolctl>=3.1'],
     extras_require={
         'ros': ROS,
-        'test': ['pytest>=7', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10'],
+        'test': ['pytest>=7', 'pytest-timeout>=2.1', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10'],
         'bench': ['SALib>=1.5', 'chaospy>=4.3'],
     },
     zip_safe=True,
