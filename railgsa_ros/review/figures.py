@@ -100,6 +100,31 @@ def _limit_lines(ax, x: np.ndarray, thresholds: np.ndarray) -> None:
         ax.plot(xe, -value, color=LEVEL_COLOURS[level], lw=0.9, ls='--')
 
 
+def _bars(ax, left: np.ndarray, width: float, height: np.ndarray, colours: np.ndarray,
+          label: str) -> None:
+    """Bars from 0 to ``height`` (N,) over [left, left + width], one filled polygon per colour
+    (the bars of a colour joined along their zero-area base; the first bar's colour first, so
+    the legend shows it, as ``ax.bar``'s does).
+
+    Why not ``ax.bar``: one Rectangle artist per bar, each updating the data limits, drawn and
+    hit-tested by the legend's 'best' placement one by one; one polygon per bar (a
+    PolyCollection) is tested path by path. Sections figure on one core: 270 bars (0.5 h)
+    0.18 -> 0.13 s, 5400 bars (10 h) 3.4 -> 0.2 s.
+    """
+    from matplotlib.collections import PolyCollection
+
+    x0, x1 = left, left + width
+    zero = np.zeros_like(height)
+    corners = np.stack([np.stack(c, axis=-1) for c in
+                        ((x0, zero), (x0, height), (x1, height), (x1, zero))], axis=1)
+    order = list(dict.fromkeys(colours.tolist()))
+    bars = PolyCollection([corners[colours == c].reshape(-1, 2) for c in order],
+                          facecolors=order, edgecolors='none', label=label)
+    bars.sticky_edges.y.append(0.0)  # as ax.bar: no margin below the bars' base
+    ax.add_collection(bars)
+    ax.autoscale_view()
+
+
 def _band_label(quantiles: tuple[float, float]) -> str:
     return f'{100 * quantiles[0]:g}-{100 * quantiles[1]:g} % band'
 
@@ -179,8 +204,8 @@ def plot_sections(path: Path, sections: Sections, limits: Limits,
         lo, hi = (np.append(sd_range[:, j], sd_range[-1, j]) for j in (0, 1))
         ax.fill_between(edges, lo, hi, step='post', color=LEVEL_COLOURS['AL'], alpha=0.3, lw=0,
                         label='EN 13848-5 SD alert range [M]')
-    ax.bar(sections.start_m + sections.length_m / 2, np.nan_to_num(sd),
-           width=0.8 * sections.length_m, color=colour, label='reconstruction')
+    _bars(ax, sections.start_m + 0.1 * sections.length_m, 0.8 * sections.length_m,
+          np.nan_to_num(sd), colour, label='reconstruction')
     if truth is not None:
         ax.hlines(truth.sd_m * MM, truth.start_m + 0.05 * truth.length_m,
                   truth.start_m + 0.95 * truth.length_m, color='k', lw=2, label='truth')
@@ -233,7 +258,8 @@ def plot_health(path: Path, health: InputHealth) -> Path:
     grid = fig.add_gridspec(2, 2)
     ax_t = fig.add_subplot(grid[0, :])
     trace = health.imu_trace
-    per_second = trace.per_second[:max(trace.per_second.size - 1, 1)]  # whole seconds
+    per_second = trace.per_second  # a property: computed at each access
+    per_second = per_second[:max(per_second.size - 1, 1)]  # whole seconds
     ax_t.step(trace.per_second_origin_s + np.arange(per_second.size), per_second, where='post',
               color=LINE_COLOUR, lw=0.9, label='IMU samples per second')
     if trace.gap_log_s:
