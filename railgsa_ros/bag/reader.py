@@ -32,6 +32,7 @@ from mcap.writer import MCAP0_MAGIC
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Connection
 
 from railgsa_ros.bag import cdr
 from railgsa_ros.bag.messages import (
@@ -50,6 +51,10 @@ from railgsa_ros.samples import CHUNK  # IMU samples per piece of iter_imu
 STORAGE_SUFFIXES = ('.mcap', '.db3')
 _RECORD = struct.Struct('<BQ')  # MCAP record: opcode, content length
 _MESSAGE = struct.Struct('<HIQQ')  # MCAP message: channel id, sequence, log and publish time
+#: messages of a batch per topic: log times (N,) ns and the decoded messages (fixed layouts) or
+#: their bytes (the others, and everything rosbags reads)
+Body = cdr.Decoded | list[bytes]
+Batch = dict[str, tuple[np.ndarray, Body]]
 
 
 def storage_paths(path: str | Path) -> list[Path]:
@@ -140,7 +145,8 @@ class TopicData:
     values: np.ndarray
 
 
-def _topic_connections(reader: AnyReader, path: Path, topic: str, msgtype: str) -> list[Any]:
+def _topic_connections(reader: AnyReader, path: Path, topic: str,
+                       msgtype: str) -> list[Connection]:
     """Connections of ``topic``; InputError when it is absent or of another type."""
     conns = [c for c in reader.connections if c.topic == topic]
     if not conns:
@@ -191,6 +197,7 @@ class _McapTopics:
         self.layouts = {topic: LAYOUTS[msgtype] for topic, msgtype in wanted.items()}
         self.pieces: dict[str, list[tuple[np.ndarray, np.ndarray, cdr.Decoded]]] = {
             t: [] for t in wanted}
+        self.wanted = set(wanted)  # topics whose messages are kept
         self._records = 0  # top-level records read: file order of chunks and messages
 
     def read(self, file: Path) -> None:
@@ -251,7 +258,7 @@ class _McapTopics:
             if opcode == Opcode.CHANNEL:
                 channel = Channel.read(ReadDataStream(BytesIO(data[at:at + length])))
                 self._known.add(channel.id)
-                if channel.topic in self.layouts:
+                if channel.topic in self.wanted:
                     self._dest[channel.id] = channel.topic
             elif opcode == Opcode.MESSAGE and key >= 0:
                 channel, _, log_time, _ = _MESSAGE.unpack_from(data, at)
@@ -305,9 +312,9 @@ def _mcap_topics(files: list[Path], wanted: dict[str, str]) -> dict[str, tuple[n
             continue
         parts = [p[2] for p in pieces]
         times = np.concatenate([p[0] for p in pieces])
-        order = np.lexsort((np.concatenate([p[1] for p in pieces]), times))
-        if np.array_equal(order, np.arange(order.size)):
-            order = slice(None)  # in order already (one file, ordered chunks): no copies
+        sort = np.lexsort((np.concatenate([p[1] for p in pieces]), times))
+        # in order already (one file, ordered chunks): a slice, no copies
+        order = slice(None) if np.array_equal(sort, np.arange(sort.size)) else sort
         out[topic] = (times[order], cdr.Decoded(
             np.concatenate([p.stamps_ns for p in parts])[order],
             tuple(np.concatenate(col)[order] for col in zip(*(p.strings for p in parts),
@@ -346,18 +353,18 @@ def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
     """Messages of a fixed-layout type collected from rosbags as arrays: vectorised when they are
     plain CDR, else deserialised one by one with the bag's own definitions."""
     layout = LAYOUTS[msgtype]
-    times = np.array(times, dtype=np.int64)
+    log_times = np.array(times, dtype=np.int64)
     try:
         dec = cdr.decode(layout, raws)
     except ValueError:
         dec, keep = _decode_each(reader, msgtype, raws)
-        if keep.size < times.size:
-            bad = np.setdiff1d(np.arange(times.size), keep)
+        if keep.size < log_times.size:
+            bad = np.setdiff1d(np.arange(log_times.size), keep)
             warnings.warn(InputWarning(
                 f'{bad.size} malformed {msgtype} message(s) skipped (empty or truncated; first '
-                f'at log time {times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
-        times = times[keep]
-    return TopicData(times, dec.stamps_ns, dec.strings, dec.values)
+                f'at log time {log_times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
+        log_times = log_times[keep]
+    return TopicData(log_times, dec.stamps_ns, dec.strings, dec.values)
 
 
 def _decode_each(reader: AnyReader, msgtype: str,
@@ -445,7 +452,8 @@ def read_imu(path: str | Path, imu_topic: str = '/imu/data',
         if odom_topic is not None and any(c.topic == odom_topic for c in reader.connections):
             wanted[odom_topic] = ODOMETRY.msgtype
         data = _read_topics(reader, path, wanted)
-    imu, odom = data[imu_topic], data.get(odom_topic)
+    imu = data[imu_topic]
+    odom = data[odom_topic] if odom_topic is not None and odom_topic in data else None
     if imu.values.shape[0] == 0:
         raise InputError(f'{path}: topic {imu_topic} has no messages')
     stream = _imu_stream(path, imu_topic, imu, odom, _stamps(imu)[1],
@@ -526,10 +534,10 @@ class GnssFixes:
     def concat(cls, parts: Sequence[GnssFixes]) -> GnssFixes:
         """Join fixes in order (an empty set for no parts)."""
         if not parts:
-            return cls(np.zeros(0, np.int64), *(np.zeros(0) for _ in range(3)),
+            return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0),
                        np.zeros(0, np.int64), np.zeros((0, 9)), np.zeros(0, np.int64))
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                     cls.__dataclass_fields__))
+        return cls(**{f: np.concatenate([getattr(p, f) for p in parts])
+                      for f in cls.__dataclass_fields__})
 
 
 def _gnss_fixes(times: np.ndarray, raws: Sequence[bytes]) -> GnssFixes:
@@ -540,8 +548,9 @@ def _gnss_fixes(times: np.ndarray, raws: Sequence[bytes]) -> GnssFixes:
     stamps = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
                        for m in msgs], dtype=np.int64)
     stamps = np.where(stamps == 0, np.asarray(times, np.int64), stamps)
-    return GnssFixes(stamps, *(np.array([getattr(m, f) for m in msgs], dtype=float)
-                               for f in ('latitude', 'longitude', 'altitude')),
+    latitude, longitude, altitude = (np.array([getattr(m, f) for m in msgs], dtype=float)
+                                     for f in ('latitude', 'longitude', 'altitude'))
+    return GnssFixes(stamps, latitude, longitude, altitude,
                      np.array([m.status.status for m in msgs], dtype=np.int64),
                      np.array([m.position_covariance for m in msgs],
                               dtype=float).reshape(-1, 9),
@@ -560,18 +569,17 @@ class _McapChunks(_McapTopics):
 
     def __init__(self, wanted: dict[str, str]) -> None:
         super().__init__({t: m for t, m in wanted.items() if m in LAYOUTS})
-        self.raw = {t for t, m in wanted.items() if m not in LAYOUTS}
-        self.layouts.update(dict.fromkeys(self.raw))
-        self.pieces.update({t: [] for t in self.raw})
+        self.raw: dict[str, list[tuple[np.ndarray, np.ndarray, list[bytes]]]] = {
+            t: [] for t, m in wanted.items() if m not in LAYOUTS}  # kept as bytes
+        self.wanted.update(self.raw)
 
     def _add(self, topic: str, times: np.ndarray, keys: np.ndarray, block: np.ndarray) -> None:
         if topic in self.raw:
-            self.pieces[topic].append((times, keys, [row.tobytes() for row in block]))
+            self.raw[topic].append((times, keys, [row.tobytes() for row in block]))
         else:
             super()._add(topic, times, keys, block)
 
-    def stream(self, files: list[Path]) -> Iterator[tuple[float, dict[str, tuple[np.ndarray,
-                                                                               Any]]]]:
+    def stream(self, files: list[Path]) -> Iterator[tuple[float, Batch]]:
         """Per MCAP chunk: (boundary, batch) where batch maps topic -> (log times, cdr.Decoded or
         list of bytes) of the messages logged before ``boundary`` (ns) not given before, in
         log-time order."""
@@ -588,33 +596,42 @@ class _McapChunks(_McapTopics):
                 yield later[done], self._take(later[done])
         yield np.inf, self._take(np.inf)
 
-    def _take(self, boundary: float) -> dict[str, tuple[np.ndarray, Any]]:
+    def _take(self, boundary: float) -> Batch:
         """Remove and return the messages logged before ``boundary`` (ns), sorted."""
-        out = {}
+        out: Batch = {}
         for topic, pieces in self.pieces.items():
             if not pieces:
-                out[topic] = (np.zeros(0, np.int64), [] if topic in self.raw else
-                              cdr.decode(self.layouts[topic], []))
+                out[topic] = (np.zeros(0, np.int64), cdr.decode(self.layouts[topic], []))
                 continue
-            times = np.concatenate([p[0] for p in pieces])
-            keys = np.concatenate([p[1] for p in pieces])
-            order = np.lexsort((keys, times))
-            cut = int(np.searchsorted(times[order], boundary, side='left'))
-            now, rest = order[:cut], order[cut:]
-            if topic in self.raw:
-                raws = [r for p in pieces for r in p[2]]
-                out[topic] = (times[now], [raws[i] for i in now])
-                kept = [raws[i] for i in rest]
-            else:
-                parts = [p[2] for p in pieces]
-                dec = cdr.Decoded(np.concatenate([p.stamps_ns for p in parts]),
-                                  tuple(np.concatenate(c) for c in
-                                        zip(*(p.strings for p in parts), strict=True)),
-                                  np.concatenate([p.values for p in parts]))
-                out[topic] = (times[now], _rows(dec, now))
-                kept = _rows(dec, rest)
-            self.pieces[topic] = [(times[rest], keys[rest], kept)] if rest.size else []
+            times, keys, now, rest = _cut(pieces, boundary)
+            parts = [p[2] for p in pieces]
+            dec = cdr.Decoded(np.concatenate([p.stamps_ns for p in parts]),
+                              tuple(np.concatenate(c) for c in
+                                    zip(*(p.strings for p in parts), strict=True)),
+                              np.concatenate([p.values for p in parts]))
+            out[topic] = (times[now], _rows(dec, now))
+            self.pieces[topic] = [(times[rest], keys[rest], _rows(dec, rest))] if rest.size else []
+        for topic, raw_pieces in self.raw.items():
+            if not raw_pieces:
+                out[topic] = (np.zeros(0, np.int64), [])
+                continue
+            times, keys, now, rest = _cut(raw_pieces, boundary)
+            raws = [r for p in raw_pieces for r in p[2]]
+            out[topic] = (times[now], [raws[i] for i in now])
+            self.raw[topic] = ([(times[rest], keys[rest], [raws[i] for i in rest])]
+                               if rest.size else [])
         return out
+
+
+def _cut(pieces: Sequence[tuple[np.ndarray, np.ndarray, object]], boundary: float
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(log times, keys, rows logged before ``boundary`` (ns), the other rows) of a topic's
+    pieces, both row lists in (log time, key) order."""
+    times = np.concatenate([p[0] for p in pieces])
+    keys = np.concatenate([p[1] for p in pieces])
+    order = np.lexsort((keys, times))
+    cut = int(np.searchsorted(times[order], boundary, side='left'))
+    return times, keys, order[:cut], order[cut:]
 
 
 def _rows(dec: cdr.Decoded, rows: np.ndarray) -> cdr.Decoded:
@@ -635,8 +652,8 @@ def _chunk_starts(file: Path) -> np.ndarray | None:
     return np.array([c.message_start_time for c in indexes], dtype=float)
 
 
-def _rosbags_stream(reader: AnyReader, conns: list[Any], wanted: dict[str, str], chunk: int,
-                    after: float = -np.inf) -> Iterator[dict[str, tuple[np.ndarray, Any]]]:
+def _rosbags_stream(reader: AnyReader, conns: list[Connection], wanted: dict[str, str],
+                    chunk: int, after: float = -np.inf) -> Iterator[Batch]:
     """rosbags' log-time ordered messages of ``wanted`` logged at or after ``after`` (ns) in
     batches of about ``chunk`` messages: topic -> (log times, raw messages)."""
     batch: dict[str, tuple[list[int], list[bytes]]] = {t: ([], []) for t in wanted}
@@ -695,17 +712,18 @@ def iter_topics(path: str | Path, wanted: dict[str, str], chunk: int = CHUNK
 
 
 def _decode_batch(reader: AnyReader, msgtype: str, times: np.ndarray,
-                  body: Any) -> TopicData | GnssFixes:
-    """Messages of one topic of a batch (cdr.Decoded of the fast path, or raw bytes)."""
-    if msgtype == NAV_SAT_FIX:
-        return _gnss_fixes(times, body)
+                  body: Body) -> TopicData | GnssFixes:
+    """Messages of one topic of a batch (cdr.Decoded of the fast path, or raw bytes: always
+    for NavSatFix, which has no fixed layout)."""
     if isinstance(body, cdr.Decoded):
         return TopicData(times, body.stamps_ns, body.strings, body.values)
+    if msgtype == NAV_SAT_FIX:
+        return _gnss_fixes(times, body)
     return _decode_raws(reader, msgtype, list(times), body)
 
 
-def _batches(path: Path, reader: AnyReader, conns: list[Any], wanted: dict[str, str],
-             chunk: int) -> Iterator[dict[str, tuple[np.ndarray, Any]]]:
+def _batches(path: Path, reader: AnyReader, conns: list[Connection], wanted: dict[str, str],
+             chunk: int) -> Iterator[Batch]:
     """Batches of the MCAP fast path; if it trips (a message that is not plain CDR, ...),
     rosbags goes on from the first message not given yet."""
     given = -np.inf  # every message logged before this was given
@@ -724,33 +742,40 @@ def _batches(path: Path, reader: AnyReader, conns: list[Any], wanted: dict[str, 
 
 def _imu_pieces(path: Path, reader: AnyReader, wanted: dict[str, str], imu_topic: str,
                 odom_topic: str | None, gnss_topic: str | None,
-                batches: Iterator[dict[str, tuple[np.ndarray, Any]]],
-                chunk: int) -> Iterator[ImuStream]:
+                batches: Iterator[Batch], chunk: int) -> Iterator[ImuStream]:
     """Decoded batches regrouped into ImuStream pieces of at least ``chunk`` IMU samples (the
     last one smaller)."""
     sources: dict[str, str] = {}
-    held: dict[str, list[TopicData | GnssFixes]] = {t: [] for t in wanted}
+    held: dict[str, list[TopicData]] = {t: [] for t, m in wanted.items() if m != NAV_SAT_FIX}
+    fixes: list[GnssFixes] = []  # of gnss_topic
     count = messages = accelerations = 0
 
-    def decode(topic: str, times: np.ndarray, body: Any) -> TopicData | GnssFixes:
+    def hold(topic: str, times: np.ndarray, body: Body) -> None:
         data = _decode_batch(reader, wanted[topic], times, body)
-        if topic not in sources and isinstance(data, TopicData) and data.stamps_ns.size:
+        if isinstance(data, GnssFixes):
+            fixes.append(data)
+            return
+        if topic not in sources and data.stamps_ns.size:
             sources[topic] = _stamps(data)[1]
-        return data
+        held[topic].append(data)
 
     def piece() -> ImuStream:
-        imu, odom = (_concat_topic(held[t], LAYOUTS[wanted[t]]) if t in held else None
-                     for t in (imu_topic, odom_topic))
-        gnss = GnssFixes.concat(held[gnss_topic]) if gnss_topic in held else None
+        imu = _concat_topic(held[imu_topic], LAYOUTS[wanted[imu_topic]])
+        odom, odom_source = None, 'header'
+        if odom_topic is not None and odom_topic in held:
+            odom = _concat_topic(held[odom_topic], LAYOUTS[wanted[odom_topic]])
+            odom_source = sources.get(odom_topic, 'header')
+        gnss = GnssFixes.concat(fixes) if gnss_topic in wanted else None
         for parts in held.values():
             parts.clear()
+        fixes.clear()
         return _imu_stream(path, imu_topic, imu, odom, sources.get(imu_topic, 'header'),
-                           sources.get(odom_topic, 'header'), gnss)
+                           odom_source, gnss)
 
     for batch in batches:
         for topic, (times, body) in batch.items():
             if len(times):
-                held[topic].append(decode(topic, times, body))
+                hold(topic, times, body)
         count = sum(len(p.stamps_ns) for p in held[imu_topic])
         if count >= chunk:
             out = piece()
