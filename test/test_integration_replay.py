@@ -73,8 +73,9 @@ def write_bag(path: Path, run: Run, rate: float = 1.0,
 
 @dataclass(frozen=True)
 class Live:
-    """What ``railgsa record`` captured: both output topics and the last diagnostics values per
-    status name."""
+    """What ``railgsa record`` captured (both output topics) and the nodes' last diagnostics
+    values per status name, as the probe saw them once the nodes had settled (the recorder's
+    last /diagnostics message may be older: on a starved machine its reader lags)."""
 
     irr: Any
     band: Any
@@ -219,14 +220,17 @@ def run_live(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,
         assert replay.wait(played_s + 60.0) == 0, _logs(system)
         assert probe.settled(n_imu, 60.0), (probe.latest, _logs(system))
         probe.drained(60.0)  # before the nodes stop: their writers still resend what is missing
-        time.sleep(0.5)  # the recorder got the last report too
+        with probe.lock:
+            diagnostics = {name: dict(values) for name, values in probe.latest.items()}
         result = recorder.stop()
         assert result.rc == 0, result.stderr
         for node in nodes:
             assert node.running(), _logs(system)
             assert 'Traceback' not in node.output(), node.output()
+    recorded = last_diagnostics(out)  # the recorder kept the nodes' reports
+    assert {f'{n}: imu input' for n in (IRR_NODE, UNC_NODE)} <= recorded.keys(), recorded.keys()
     return Live(read_stamped(out, IRR, POINT_STAMPED.msgtype),
-                read_stamped(out, BAND, VECTOR3_STAMPED.msgtype), last_diagnostics(out))
+                read_stamped(out, BAND, VECTOR3_STAMPED.msgtype), diagnostics)
 
 
 def run_complete(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,

@@ -90,7 +90,9 @@ def test_replay_delivers_every_message_with_bag_timing(kind: str, rate: float, t
     assert sink.raws('/imu/data') == [raw for _, _, raw in written]
     span = (sink.got['/imu/data'][-1][0] - sink.got['/imu/data'][0][0]) / NS
     ideal = 0.999 / rate
-    assert 0.9 * ideal - 0.02 < span < 1.5 * ideal + 0.3, span  # paced, not a burst
+    # paced, not a burst; no upper bound: a starved receiver sees the span stretched (the
+    # schedule's own accuracy is tested in test_playback_schedule.py)
+    assert span > 0.9 * ideal - 0.02, span
 
 
 def test_topics_and_remap(tmp_path: Path, ros_context: Any, spin: Any) -> None:
