@@ -122,6 +122,40 @@ def test_cdr_imu_property(frames: list[str], stamps: list[int], values: list[flo
     np.testing.assert_array_equal(dec.values, np.tile(body, (6, 1)))
 
 
+@settings(max_examples=150, deadline=None)
+@given(data=st.data(), n=st.integers(1, cdr.FEW))
+def test_cdr_few_messages_decode_as_the_vectorised_path(data: st.DataObject, n: int) -> None:
+    """Up to FEW messages are read one by one: the same stamps, strings and values as the
+    vectorised path, and a ValueError exactly where it raises (any endianness, frame ids,
+    truncations and overwritten bytes, e.g. a string length past the end)."""
+    raws = []
+    for _ in range(n):
+        frame = data.draw(st.sampled_from(['imu_link', '', 'bäh_ü', 'x' * 13]))
+        stamp = data.draw(st.integers(-2**31 * 10**9, 2**31 * 10**9 - 1))
+        msg = ros_msg(IMU.msgtype, stamp, (frame,), np.arange(IMU.n_doubles, dtype=float))
+        raw = bytearray(TS.serialize_cdr(msg, IMU.msgtype,
+                                         little_endian=data.draw(st.booleans())))
+        for _ in range(data.draw(st.integers(0, 2))):
+            raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(st.integers(0, 255))
+        raws.append(bytes(raw[:data.draw(st.integers(0, len(raw)))]
+                          if data.draw(st.booleans()) else raw))
+
+    def decoded(few: int) -> tuple | str:
+        cdr.FEW = few
+        try:
+            d = cdr.decode(IMU, raws)
+        except ValueError:
+            return 'ValueError'
+        finally:
+            cdr.FEW = few_default
+        return (d.stamps_ns.tolist(), d.nanosec.tolist(), [t.tolist() for t in d.strings],
+                d.values.tobytes() if d.values.dtype == '<f8' else
+                d.values.astype('<f8').tobytes())
+
+    few_default = cdr.FEW
+    assert decoded(few_default) == decoded(0)
+
+
 def test_cdr_decodes_mixed_frame_ids_and_rejects_other_encodings() -> None:
     body = np.arange(IMU.n_doubles, dtype=float)
     frames = ['imu_link', 'imu', 'imu_link', 'a_much_longer_frame_name', 'imu']
