@@ -21,6 +21,7 @@ from railgsa_ros.inverse.feedback import UNSUPPORTED, check_gain
 NODE_NAME = 'irregularity_node'
 METHODS = ('spectral', 'feedback', 'kalman')
 AXES = ('z', '-z', 'x', '-x', 'y', '-y')
+MOUNTINGS = ('estimate', 'axis', 'rotation')
 INF = math.inf
 
 
@@ -58,6 +59,19 @@ class InversionConfig:
     accel_axis: str = _p('z', 'IMU axis (with sign) pointing up in the car body', choices=AXES)
     gravity_mps2: float = _p(9.80665, 'gravity subtracted from the vertical axis, m/s^2',
                              (0.0, 20.0))
+    mounting: str = _p('estimate', 'vertical: estimate (accel_axis while gravity is within '
+                                   'tilt_tolerance_deg of it, else the estimated gravity '
+                                   'direction), axis (accel_axis as is), rotation (accel_axis '
+                                   'turned by mount_roll_deg, mount_pitch_deg)', choices=MOUNTINGS)
+    mount_roll_deg: float = _p(0.0, 'mounting rotation: roll of the sensor about its x axis, '
+                                    'deg', (-180.0, 180.0))
+    mount_pitch_deg: float = _p(0.0, 'mounting rotation: pitch of the sensor about its y axis '
+                                     '(after the roll), deg', (-90.0, 90.0))
+    tilt_tolerance_deg: float = _p(2.0, 'estimated gravity further than this from the axis in '
+                                        'use: outputs DEGRADED (estimate: projected on it), deg',
+                                   (0.0, 90.0))
+    max_tilt_deg: float = _p(40.0, 'mounting estimate: tilt from accel_axis beyond which '
+                                   'outputs are DEGRADED, deg', (0.0, 90.0))
     remove_bias: bool = _p(False, 'subtract the running mean of the acceleration since the '
                                   '(re)start, an estimate of a constant bias')
     taper_s: float = _p(0.5, 'raised-cosine fade-in after a (re)start and fade-out at flush, s',

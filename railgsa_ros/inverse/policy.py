@@ -40,8 +40,9 @@ from scipy.signal import lfilter
 
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.mounting import Mounting
 from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
-from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality, quality_counts
 from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.inverse.sanitize import REASONS, SMALL, SPEED_LIMIT_MPS, frame_mask
@@ -127,6 +128,7 @@ class _Held:
     def clear(self) -> None:
         self.stamps = np.zeros(0, np.int64)
         self.accel = np.zeros((0, 3))
+        self.vertical = np.zeros(0)  # upward specific force (mounting projection), m/s^2
         self.frames = np.zeros(0, dtype=object)
         self.flags = np.zeros(0, np.uint8)  # input quality from gravity and rate checks
         self.arrival = np.zeros(0, np.int64)  # index of the sample since the policy started
@@ -134,25 +136,28 @@ class _Held:
     def __len__(self) -> int:
         return int(self.stamps.size)
 
-    def extend(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
-               flags: np.ndarray, arrival: np.ndarray) -> None:
+    def extend(self, stamps: np.ndarray, accel: np.ndarray, vertical: np.ndarray,
+               frames: np.ndarray, flags: np.ndarray, arrival: np.ndarray) -> None:
         if not len(self):  # the usual live case: nothing waits, no copy
             self.stamps, self.accel, self.frames = stamps, accel, frames
+            self.vertical = vertical
             self.flags, self.arrival = flags, arrival
             return
         self.stamps = np.concatenate([self.stamps, stamps])
         self.accel = np.concatenate([self.accel, accel])
+        self.vertical = np.concatenate([self.vertical, vertical])
         self.frames = np.concatenate([self.frames, frames])
         self.flags = np.concatenate([self.flags, flags])
         self.arrival = np.concatenate([self.arrival, arrival])
 
     def pop(self, count: int) -> tuple[np.ndarray, ...]:
-        out = (self.stamps[:count], self.accel[:count], self.frames[:count],
-               self.flags[:count])
+        out = (self.stamps[:count], self.accel[:count], self.vertical[:count],
+               self.frames[:count], self.flags[:count])
         if count == len(self):
             self.clear()
             return out
         self.stamps, self.accel = self.stamps[count:], self.accel[count:]
+        self.vertical = self.vertical[count:]
         self.frames, self.flags = self.frames[count:], self.flags[count:]
         self.arrival = self.arrival[count:]
         return out
@@ -202,6 +207,7 @@ class InputPolicy:
         self._reject_run = 0  # samples pushed since the last accepted one
         self._start_chainage = 0.0
         self._rest = (np.zeros(3), 0)  # sum (3,) m/s^2 and count of the samples at rest
+        self.mounting = Mounting(self.config)  #: gravity estimate and vertical projection
         self._check_units()
         if noise_variance is not None:
             self._build()
@@ -230,7 +236,8 @@ class InputPolicy:
         stamps closer than a gap), wrong_frame_accepted and the
         emitted outputs by quality: valid, degraded, invalid."""
         live = Counter(self.pipeline.counters) if self.pipeline is not None else Counter()
-        return dict(self._retired + live + self._counts)
+        mounting = Counter({'mounting_degraded': self.mounting.degraded})
+        return dict(self._retired + live + self._counts + mounting)
 
     @property
     def findings(self) -> list[Finding]:
@@ -296,18 +303,21 @@ class InputPolicy:
             rows = [all(-np.inf < x < np.inf for x in row) for row in data]
             flags = np.maximum(self._gravity_flags_small(data, rows),
                                self._rate_flags_small(stamps, rows))
+            vert, mount = self.mounting.vertical_small(data, rows)
             newest = max((t for t, ok in zip(stamps.tolist(), rows, strict=True) if ok),
                          default=None)
         else:
             finite = np.isfinite(accel).all(axis=1)
             flags = np.maximum(self._gravity_flags(accel, finite),
                                self._rate_flags(stamps, finite))
+            vert, mount = self.mounting.vertical(accel, finite)
             newest = int(stamps[finite].max()) if finite.any() else None
         arrival = self._received + np.arange(stamps.size)
         self._received += stamps.size
         if newest is not None:
             self._newest_imu = max(self._newest_imu, newest)
-        self._held.extend(stamps, accel, frames, flags, arrival)
+        self._mounting_finding()
+        self._held.extend(stamps, accel, vert, frames, np.maximum(flags, mount), arrival)
         return self._release(final=False)
 
     def flush(self) -> Output:
@@ -342,6 +352,7 @@ class InputPolicy:
         self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
         self.options = options if options is not None else self.options
         self._counts['rebuild'] += 1
+        self.mounting.configure(self.config)
         self._check_units()
         if self.noise_variance is not None:
             self._build()
@@ -411,6 +422,13 @@ class InputPolicy:
         self._build()
 
     # ------------------------------------------------------------------ checks at arrival
+    def _mounting_finding(self) -> None:
+        """The 'mounting' finding, once the first block has given an estimate."""
+        m = self.mounting
+        old = self._findings.get('mounting')
+        if m.message and (old is None or old.message is not m.message):
+            self._findings['mounting'] = Finding('mounting', m.level, m.message)
+
     def _frame_check(self, frames: np.ndarray) -> None:
         expected = self.config.frame_id
         if frames.size <= SMALL and all(type(f) is str and f == expected for f in frames):
@@ -653,7 +671,7 @@ class InputPolicy:
         count = len(self._held) if final else self._ready()
         if count == 0:
             return self._empty()
-        stamps, accel, frames, flags = self._held.pop(count)
+        stamps, accel, vert, frames, flags = self._held.pop(count)
         speed, known = self._speeds(stamps)
         if count <= SMALL:
             v, k = speed.tolist(), known.tolist()
@@ -667,7 +685,7 @@ class InputPolicy:
         quality = np.maximum(flags, self._speed_quality(speed, known))
         strict = self.options.wrong_frame_policy == 'reject'
         before = pipeline.accepted
-        out = pipeline.push(stamps, vertical(accel, self.config.accel_axis), speed,
+        out = pipeline.push(stamps, vert, speed,
                             frames.astype(str) if strict else None, quality)
         self._reject_finding(count, pipeline.accepted - before)
         return self.finish(out)
