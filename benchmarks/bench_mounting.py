@@ -29,7 +29,9 @@ DIPS = ((1500.0, 8e-3), (2100.0, 4e-3), (2600.0, 6e-3))  # chainage m, depth m
 
 
 def simulate(seed: int, duration: float, brake: bool):
-    speed = np.array([22.0, 22.0, 22.0, 18.0, 18.0, 22.0]) if brake else 20.0
+    # every 10 s: braking at 1 m/s^2 from 40 s, traction at 1 m/s^2 from 80 s
+    speed = np.interp(np.linspace(0, 150, 16), [0, 40, 50, 80, 90, 150],
+                      [25.0, 25, 15, 15, 25, 25]) if brake else 20.0
     defects = ','.join(f'dip@{x:g}:len=6:depth={d:g}' for x, d in DIPS)
     run = run_scenario('german-low', speed, duration, None,
                        imu_spec('adxl355', dropout_fraction=0.0), seed=seed, defects=defects)

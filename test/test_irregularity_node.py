@@ -514,6 +514,30 @@ def test_gravity_on_minus_y_live_every_output_invalid_and_a_finding_naming_the_a
     assert inv[2]['invalid'] == str(len(ref)) and inv[2]['valid'] == '0'
 
 
+def test_tilted_sensor_live_equals_the_policy_and_reports_the_tilt(rig: Callable) -> None:
+    """A sensor rolled 25 deg (docs/inversion.md, Mounting): the node publishes what the policy
+    gives offline (projected on the estimate, DEGRADED while it settles, never VALID) and
+    /diagnostics 'input checks' carries the 'mounting' finding with the angle."""
+    from railgsa_ros.mount_sim import mounted
+    from railgsa_ros.scenario import run_scenario
+
+    run = run_scenario('german-low', speed_mps=40.0, duration_s=3.0, rate_hz=1000.0,
+                       sensor='adxl355', seed=2)
+    stamps, acc = run.stamps_ns + T0_NS, mounted(run.accel, 25.0, 0.0)
+    ref = _policy({}).imu(stamps, acc, None, np.zeros((len(stamps), 9)))
+    assert len(ref) > 0 and not np.any(ref.quality == 0)
+    r = rig()
+    r.publish(imu_msgs(stamps, acc))
+    got_t, _, got_z, _ = r.outputs(len(ref))
+    np.testing.assert_array_equal(got_t, ref.stamps_ns)
+    np.testing.assert_array_equal(r.quality[:len(ref)], ref.quality)
+    np.testing.assert_array_equal(got_z, ref.u_m)
+    d = r.diagnostics(lambda d: 'mounting' in d['input checks'][2])
+    finding = d['input checks'][2]['mounting']
+    assert finding.startswith('WARN') and 'settles' in finding
+    assert abs(float(finding.split('tilted ')[1].split()[0]) - 25.0) < 1.0
+
+
 def test_rate_hz_disagreeing_with_the_data_live_is_an_error_and_invalid(run: Any,
                                                                         rig: Callable) -> None:
     """rate_hz 500 for 1 kHz data: docs/inversion.md, 'rate': INVALID from the end of the first

@@ -20,7 +20,8 @@ from railgsa_ros.samples import pieces
 from railgsa_ros.scenario import run_scenario
 
 DIPS = ((950.0, 6e-3), (1150.0, 4e-3))  # chainage m, depth m: after the estimate settles
-SPEED = np.array([22.0, 22.0, 18.0, 18.0, 22.0, 20.0])  # braking 1 m/s^2 and traction
+#: every 5 s over 70 s: braking at 1 m/s^2 from 10 s, traction at 1 m/s^2 from 30 s
+SPEED = np.array([22.0, 22, 22, 17, 17, 17, 17, 22, 22, 22, 22, 22, 22, 22, 22])
 
 
 @pytest.fixture(scope='module')

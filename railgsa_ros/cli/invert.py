@@ -338,6 +338,8 @@ def run(args: argparse.Namespace) -> int:
     for finding in driver.nominal.findings:
         if finding.level:
             print(f'warning: {finding.message}', file=sys.stderr)
+        elif finding.key == 'mounting':
+            print(f'mounting: {finding.message}', file=sys.stderr)
     if usable == 0:
         print('warning: every output is INVALID (u = nan): see the warnings above, or the run '
               'is shorter than the band window', file=sys.stderr)

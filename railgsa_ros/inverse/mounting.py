@@ -114,6 +114,8 @@ class Mounting:
     def configure(self, config: InversionConfig) -> None:
         """(Re)read the mounting parameters; the estimate is kept (the filters restart)."""
         self.config = config
+        sat = config.saturation_mps2
+        self._limit = sat - config.saturation_margin_mps2 if sat > 0 else math.inf
         self.axis = axis_vector(config.accel_axis)
         self._col, self._sign = AXES.index(config.accel_axis[-1]), self.axis[AXES.index(
             config.accel_axis[-1])]
@@ -149,9 +151,11 @@ class Mounting:
 
     def vertical(self, accel: np.ndarray, finite: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Upward specific force (T,) m/s^2 of accel (T, 3) and the quality codes (T,) uint8;
-        ``finite`` (T,) bool: rows without NaN (only they feed the estimate)."""
+        ``finite`` (T,) bool: rows without NaN. Only finite rows within the saturation limit
+        on every axis feed the estimate."""
         n = accel.shape[0]
         vert, flags = np.empty(n), np.empty(n, np.uint8)
+        finite = finite & (np.abs(accel) < self._limit).all(axis=1)
         where = np.flatnonzero(finite)
         pos, used = 0, 0
         while True:
@@ -185,9 +189,9 @@ class Mounting:
         """``vertical`` of a few rows (accel and finite as lists) in Python floats, the same
         operations in the same order."""
         vert, flags = [], []
-        s0, s1, s2 = self._sum
+        s0, s1, s2, lim = *self._sum, self._limit
         for (x, y, z), ok in zip(data, finite, strict=True):
-            if ok:
+            if ok and -lim < x < lim and -lim < y < lim and -lim < z < lim:
                 self._count += 1
                 s0, s1, s2 = s0 + x, s1 + y, s2 + z
             if self._from == self._to == self.axis:
@@ -198,7 +202,7 @@ class Mounting:
                 vert.append(x * (f0 + r * d0) + y * (f1 + r * d1) + z * (f2 + r * d2))
             flags.append(self._flag)
             self.degraded += self._flag == _DEGRADED
-            if ok and self._count == self.block:
+            if self._count == self.block:
                 self._sum = [s0, s1, s2]
                 self._end_block()
                 s0, s1, s2 = self._sum
@@ -213,11 +217,11 @@ class Mounting:
         self.blocks += 1
         if self.config.gravity_mps2 == 0:  # the driver removed gravity: nothing to estimate
             return
-        m = np.median(np.array(self._means), axis=0)
-        norm = math.sqrt(float(m[0]) ** 2 + float(m[1]) ** 2 + float(m[2]) ** 2)
-        if not norm > 0:
+        m0, m1, m2 = (float(v) for v in np.median(np.array(self._means), axis=0))
+        norm = math.hypot(m0, m1, m2)
+        if not 0 < norm < math.inf:
             return
-        self.gravity = (float(m[0]) / norm, float(m[1]) / norm, float(m[2]) / norm)
+        self.gravity = (m0 / norm, m1 / norm, m2 / norm)
         self._decide(self.gravity, ramp=True)
 
     def _decide(self, g: Vector, ramp: bool) -> None:

@@ -21,6 +21,9 @@ policy"):
   reported. ``speed_mps`` is used only with ``use_odom`` false (``--speed`` offline).
 - quality per sample (:class:`~railgsa_ros.inverse.quality.Quality`), carried through the band
   delay line; INVALID outputs have u = NaN.
+- mounting (``inverse.mounting.Mounting``, ``mounting``): the gravity direction estimated from
+  the 3-axis specific force, the vertical projected on it or on a configured rotation, the
+  tilt reported, DEGRADED while the axis in use is off it or unsettled.
 - plausibility: gravity on the configured axis and sign, the measured rate against
   ``rate_hz``, the magnitude of the specific force at rest against gravity (scale factor and
   bias), speed known, every sample rejected, the frame policy; ``findings`` and
@@ -111,8 +114,9 @@ class PolicyOptions:
 
 @dataclass(frozen=True)
 class Finding:
-    """One plausibility verdict: key ('gravity', 'rate', 'rest', 'speed', 'odometry', 'frame',
-    'rejected', 'noise'), level (OK/WARN/ERROR) and a one-line message saying what to do."""
+    """One plausibility verdict: key ('gravity', 'rate', 'rest', 'mounting', 'speed',
+    'odometry', 'frame', 'rejected', 'noise'), level (OK/WARN/ERROR) and a one-line message
+    saying what to do."""
 
     key: str
     level: int

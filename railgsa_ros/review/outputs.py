@@ -146,6 +146,8 @@ def summary(review: Review, report: Path) -> dict[str, Any]:
         'sections': {'count': int(np.sum(np.isfinite(sd))),
                      'max_sd_mm': _number(float(np.nanmax(sd)) * MM, 4)
                      if np.any(np.isfinite(sd)) else None},
+        'findings': {f.key: {'level': ('OK', 'WARN', 'ERROR')[f.level], 'message': f.message}
+                     for f in run.findings},
         'review_s': _number(total, 2),
         'real_time_factor': _number(review.duration_s / total, 1) if total > 0 else None,
     }

@@ -250,14 +250,18 @@ def _health_section(review: Review, names: dict[str, str]) -> str:
     stamps = _table(['topic', 'messages', 'rate [Hz]', 'mean rate [Hz]', 'jitter std [us]',
                      'jitter max [us]', 'gaps', 'longest gap [ms]', 'steps <= 0'], rows)
     counters = _table(['counter', 'count'], [[k, str(v)] for k, v in sorted(h.counters.items())])
+    findings = _table(['check', 'level', 'finding'],
+                      [[f.key, ('OK', 'WARN', 'ERROR')[f.level], f.message]
+                       for f in review.run.findings], left=3)
     odom = ('no odometry: the configured speed was used' if h.odom is None else
             f'speed {h.speed_min_mps * 3.6:.0f}-{h.speed_max_mps * 3.6:.0f} km/h')
     return f'''<h2>4. Input health</h2>
 {_figure(names, 'health', 'input health')}
 <p class=note>Stamps from the {escape(h.stamp_source)}; {odom}. Gaps: steps above
 {h.gap_factor:g} nominal periods. The counters are the streaming
-pipeline's own (rejected samples by reason, gaps, resets, emitted).</p>
-{stamps}{counters}'''
+pipeline's own (rejected samples by reason, gaps, resets, emitted); the findings are the
+input policy's checks at the end of the run (mounting tilt, rate, gravity, speed, ...).</p>
+{stamps}{counters}{findings}'''
 
 
 def _truth_section(review: Review, names: dict[str, str]) -> str:

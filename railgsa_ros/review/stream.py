@@ -28,7 +28,7 @@ import numpy as np
 from railgsa_ros import samples
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError
-from railgsa_ros.inverse.policy import PolicyOptions
+from railgsa_ros.inverse.policy import Finding, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Location, Reference
 from railgsa_ros.offline import (
@@ -85,7 +85,8 @@ class ReviewRun:
     the largest |u| and widest band, samples per speed class (classes of ``CLASS_UPPER_KMH``,
     then beyond the table), the first and last output (stamp ns, chainage m), the emitted count,
     the input health, the window records, the worst sample and design of the band (None
-    without), the pipeline's counters and band delay, the imu stamps' source and the location.
+    without), the pipeline's counters and band delay, the imu stamps' source, the location and
+    the input policy's findings at the end (the mounting tilt among them).
     """
 
     grid: Grid
@@ -104,6 +105,7 @@ class ReviewRun:
     counters: dict[str, int]
     delay_samples: int
     location: Location
+    findings: list[Finding]
 
     def __len__(self) -> int:
         return self.emitted
@@ -248,7 +250,8 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
                      summaries.classes, summaries.first, summaries.last, summaries.emitted,
                      health.health(driver.counters, first.stamp_source), windows,
                      summaries.worst, driver.bank.design if driver.bank else None,
-                     driver.counters, driver.delay_samples, location), config
+                     driver.counters, driver.delay_samples, location,
+                     driver.nominal.findings), config
 
 
 def _rejections(counters: dict[str, int]) -> str:
