@@ -5,10 +5,14 @@ flags and findings; an upright sensor unchanged."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from railgsa_ros.bag import write_run
+from railgsa_ros.cli.main import main
 from railgsa_ros.imu import imu_spec
 from railgsa_ros.inverse import mounting
 from railgsa_ros.inverse.config import InversionConfig
@@ -148,3 +152,14 @@ def test_up_vector_is_scipys_rotation_and_roll_pitch_invert_it(axis):
         assert (rp is None) == (axis[-1] != 'z')
         if rp is not None:
             assert np.allclose(rp, (roll, pitch), atol=1e-9)
+
+
+def test_invert_reports_the_tilt(tmp_path, capsys):
+    """railgsa invert on a bag of a sensor rolled 25 deg: the mounting finding (WARN while the
+    estimate settles, a 20 s run) with the angle among its warnings."""
+    run = run_scenario('german-low', 25.0, 20.0, 500.0, 'adxl355', seed=2)
+    bag = write_run(tmp_path / 'tilted', replace(run, accel=mounted(run.accel, 25.0, 0.0)))
+    assert main(['invert', str(bag), '--csv', str(tmp_path / 'u.csv')]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if 'tilted' in x)
+    assert line.startswith('warning: sensor tilted') and 'settles' in line
+    assert abs(float(line.split('tilted ')[1].split()[0]) - 25.0) < 1.0

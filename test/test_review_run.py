@@ -5,6 +5,7 @@ injected faults in the input health, and bad input (exit 2, nothing written)."""
 from __future__ import annotations
 
 from dataclasses import replace
+from html import escape
 from pathlib import Path
 import re
 
@@ -16,6 +17,7 @@ from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.review.build import build_review, write_review
 from railgsa_ros.review.grid import GridBuilder
+from railgsa_ros.review.outputs import summary
 from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import save_csv
@@ -173,6 +175,10 @@ def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: 
         assert re.search(f'<span class={level}>{level}</span> {count} \\(', html)
     assert '[M]' in html and 'lower</b> end' in html
     assert not list(tmp_path.glob('.out*'))  # no temporary left behind
+    # the input policy's findings: the mounting tilt of the upright sensor (report and --json)
+    mounting = summary(review, report)['findings']['mounting']
+    assert mounting['level'] == 'OK' and 'tilted 0.' in mounting['message']
+    assert escape(mounting['message']) in html
 
 
 def test_injected_faults_appear_in_the_input_health(tmp_path: Path) -> None:
