@@ -82,11 +82,11 @@ def test_tilted_sensor_estimate_gives_the_upright_dips_and_reports_the_tilt(
     assert np.all(np.abs(depths(out) / depths(ref) - 1) < 0.015), depths(out) / depths(ref)
     plain, _ = invert(run, tilted, mounting='axis')
     assert np.all(depths(plain) / depths(ref) < 0.97)
-    # DEGRADED until the estimate settles (and its band window), VALID after
+    # DEGRADED until the estimate settles (30 blocks: the first one short), VALID after
     t = (out.stamps_ns - run.stamps_ns[0]) / 1e9
-    early = (t > 1) & (t < mounting.SETTLE_S)
+    early = (t > 1) & (t < mounting.SETTLE_S - mounting.BLOCK_S + mounting.FIRST_S)
     assert np.all(out.quality[early] >= Quality.DEGRADED)
-    late = (t > mounting.SETTLE_S + 8) & (t < 60)
+    late = (t > mounting.SETTLE_S) & (t < 60)
     assert np.all(out.quality[late] == Quality.VALID)
     assert policy.counters['mounting_degraded'] > 0
 
@@ -128,7 +128,8 @@ def test_upright_sensor_is_unchanged(body, upright, extra):
     for name in ('stamps_ns', 'u_m', 'quality'):
         assert getattr(out, name).tobytes() == getattr(ref, name).tobytes(), name
     # only the first block before any estimate (inside the warm-up, INVALID anyway)
-    assert policy.counters.get('mounting_degraded', 0) == (0 if extra else policy.mounting.block)
+    first = round(mounting.FIRST_S * run.rate_hz)
+    assert policy.counters.get('mounting_degraded', 0) == (0 if extra else first)
     if not extra:
         assert policy.mounting.tilt_deg < 1.0
         assert {f.key: f.level for f in policy.findings}['mounting'] == OK

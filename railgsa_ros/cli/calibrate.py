@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from railgsa_ros.errors import ConfigError, InputError
     from railgsa_ros.fileio import atomic_output
     from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.inverse.pipeline import vertical
+    from railgsa_ros.inverse.mounting import Mounting
     from railgsa_ros.track import load_csv
     from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
     from railgsa_ros.uncertainty.parameters import load_uncertainty, parse_parameter, table3
@@ -81,8 +81,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise InputError(f'{args.bag}: no odometry on {args.odom_topic}; give --speed')
     reference = (ref_x + args.offset, ref_u)
-    cal = calibrate(stream.stamps_ns, vertical(stream.accel, config.accel_axis), speed,
-                    reference, config, vehicle, prior, names)
+    up, _ = Mounting(config).vertical(stream.accel, np.isfinite(stream.accel).all(axis=1))
+    cal = calibrate(stream.stamps_ns, up, speed, reference, config, vehicle, prior, names)
     theta = dict(zip(PARAM_NAMES, (float(v) for v in cal.theta), strict=True))
     posterior = {'names': list(cal.names), 'mean': [float(m) for m in cal.mean],
                  'covariance': [[float(c) for c in row] for row in cal.covariance]}

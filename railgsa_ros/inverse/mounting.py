@@ -8,8 +8,9 @@ turns it into the vertical acceleration u . a, where u is the car-body up direct
 frame (docs/inversion.md, "Mounting"):
 
 - estimate: the per-axis median of the means of the last WINDOW_S of BLOCK_S blocks of finite
-  samples, normalised (braking, curves and cant put quasi-static accelerations on the mean for
-  tens of seconds; the median ignores them while they fill less than half of the window);
+  samples (the first block FIRST_S), normalised (braking, curves and cant put quasi-static
+  accelerations on the mean for tens of seconds; the median ignores them while they fill less
+  than half of the window);
   settled after SETTLE_S. Blocks count samples, so the estimate is the same for any batching.
 - ``mounting`` 'axis': u is ``accel_axis``; 'rotation': ``accel_axis`` turned by
   ``mount_roll_deg`` (about x) then ``mount_pitch_deg`` (about y), see :func:`up_vector`;
@@ -27,7 +28,6 @@ same order as the numpy paths, bit-identical (test_core_batching.py).
 
 from __future__ import annotations
 
-from collections import deque
 import math
 
 import numpy as np
@@ -35,7 +35,8 @@ import numpy as np
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.quality import Quality
 
-BLOCK_S = 0.25  #: samples per block mean, s (at rate_hz); the first one ends within taper_s
+BLOCK_S = 1.0  #: samples per block mean, s (at rate_hz)
+FIRST_S = 0.25  #: the first block is this short: the first estimate comes within taper_s
 WINDOW_S = 120.0  #: the estimate is the median of the block means of this long, s
 SETTLE_S = 30.0  #: the estimate is settled after this long of blocks, s
 SLEW_DEG_S = 0.1  #: a settled projection axis turns at most this fast, deg/s
@@ -97,18 +98,31 @@ def _toward(a: Vector, b: Vector, max_deg: float) -> Vector:
     return (v[0] / n, v[1] / n, v[2] / n)
 
 
+def _median(values: np.ndarray) -> tuple[float, float, float]:
+    """Per-row median of values (3, n): the middle value, or the mean of the two."""
+    n = values.shape[1]
+    k = n // 2
+    part = np.partition(values, [k - 1, k] if n % 2 == 0 else k, axis=1)
+    mid = part[:, k] if n % 2 else (part[:, k - 1] + part[:, k]) / 2
+    return float(mid[0]), float(mid[1]), float(mid[2])
+
+
 class Mounting:
     """The gravity estimate and the vertical projection of one IMU stream (module text)."""
 
     def __init__(self, config: InversionConfig) -> None:
         self.block = max(1, round(BLOCK_S * config.rate_hz))  # samples per block
-        self._means: deque[Vector] = deque(maxlen=max(1, round(WINDOW_S / BLOCK_S)))
+        self._means = np.zeros((3, max(1, round(WINDOW_S / BLOCK_S))))  # ring of block means
         self._sum = [0.0, 0.0, 0.0]
-        self._count = 0  # finite samples in the open block
+        # usable samples in the open block; the first block starts as if this many had come
+        self._first = min(self.block, max(1, round(FIRST_S * config.rate_hz)))
+        self._count = self.block - self._first
         self.blocks = 0  #: blocks completed
         self.degraded = 0  #: samples flagged DEGRADED for their mounting
         self.gravity: Vector | None = None  #: estimated unit direction of gravity (sensor frame)
-        self.level, self.message = OK, ''  #: the 'mounting' finding ('' before the first block)
+        self.level = OK  #: level of the 'mounting' finding
+        self.version = 0  #: decisions made (the finding changes with it; 0: none yet)
+        self._state: tuple[Vector, float, float, bool, bool] | None = None  # for ``message``
         self.configure(config)
 
     def configure(self, config: InversionConfig) -> None:
@@ -129,7 +143,7 @@ class Mounting:
             start, self._use_estimate = self.gravity, True
         self._from = self._to = start
         self._delta = (0.0, 0.0, 0.0)
-        # before the first estimate DEGRADED (inside the warm-up while taper_s >= BLOCK_S)
+        # before the first estimate DEGRADED (inside the warm-up while taper_s >= FIRST_S)
         self._flag = _DEGRADED if config.gravity_mps2 != 0 else _VALID
         if self.gravity is not None:
             self._decide(self.gravity, ramp=False)
@@ -137,7 +151,7 @@ class Mounting:
     @property
     def settled(self) -> bool:
         """Whether SETTLE_S of blocks have been seen."""
-        return self.blocks * self.block >= SETTLE_S * self.config.rate_hz
+        return self.blocks >= round(SETTLE_S / BLOCK_S)
 
     @property
     def tilt_deg(self) -> float:
@@ -152,37 +166,61 @@ class Mounting:
     def vertical(self, accel: np.ndarray, finite: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Upward specific force (T,) m/s^2 of accel (T, 3) and the quality codes (T,) uint8;
         ``finite`` (T,) bool: rows without NaN. Only finite rows within the saturation limit
-        on every axis feed the estimate."""
-        n = accel.shape[0]
-        vert, flags = np.empty(n), np.empty(n, np.uint8)
-        finite = finite & (np.abs(accel) < self._limit).all(axis=1)
-        where = np.flatnonzero(finite)
-        pos, used = 0, 0
-        while True:
-            need = self.block - self._count
-            end = int(where[used + need - 1]) + 1 if used + need <= where.size else n
-            seg = slice(pos, end)
-            ok = finite[seg]
-            k = self._count + np.cumsum(ok)
-            vert[seg] = self._project(accel[seg], k / self.block)
-            flags[seg] = self._flag
-            self.degraded += (end - pos) * (self._flag == _DEGRADED)
-            rows = accel[seg][ok]
-            for c in range(3):
-                self._sum[c] = float(np.cumsum(np.concatenate([[self._sum[c]], rows[:, c]]))[-1])
-            self._count += rows.shape[0]
-            used += rows.shape[0]
-            if self._count == self.block:
-                self._end_block()
-            if end == n:
-                return vert, flags
-            pos = end
+        on every axis feed the estimate. The block sums of the whole chunk at once (cumsum:
+        sequential, as the scalar path adds), then the decisions block by block, then the
+        projection of every row with its block's axis ramp."""
+        b, start = self.block, self._count
+        if float(np.max(np.abs(accel), initial=0.0)) < self._limit:  # NaN fails: the mask
+            ok = finite
+        else:
+            ok = finite & (np.abs(accel) < self._limit).all(axis=1)
+        every = bool(ok.all())
+        params = [(self._from, self._delta, self._flag)]
+        for total in self._block_sums(accel if every else accel[ok]):
+            self._end_block(total)
+            params.append((self._from, self._delta, self._flag))
+        # usable rows since the open block's start, and blocks completed before each row
+        count = start + (np.arange(1, ok.size + 1) if every else np.cumsum(ok))
+        segment = np.concatenate([[start], count[:-1]]) // b if len(params) > 1 else None
+        codes = [p[2] for p in params]
+        if segment is None or min(codes) == max(codes):
+            flags = np.full(ok.size, codes[0], np.uint8)
+        else:
+            flags = np.array(codes, np.uint8)[segment]
+        self.degraded += int(np.count_nonzero(flags == _DEGRADED))
+        exact = [p[0] == self.axis and p[1] == (0.0, 0.0, 0.0) for p in params]
+        pick = self._sign * accel[:, self._col]
+        if all(exact):
+            return pick, flags
+        if segment is None:
+            segment = np.zeros(ok.size, np.int64)
+        ramp = (count - segment * b) / b
+        sizes = np.bincount(segment, minlength=len(params))
+        f = np.repeat(np.array([p[0] for p in params]).T, sizes, axis=1)  # (3, T)
+        d = np.repeat(np.array([p[1] for p in params]).T, sizes, axis=1)
+        vert = accel[:, 0] * (f[0] + ramp * d[0]) + accel[:, 1] * (
+            f[1] + ramp * d[1]) + accel[:, 2] * (f[2] + ramp * d[2])
+        if any(exact):
+            vert = np.where(np.repeat(exact, sizes), pick, vert)
+        return vert, flags
 
-    def _project(self, a: np.ndarray, r: np.ndarray) -> np.ndarray:
-        if self._from == self._to == self.axis:
-            return self._sign * a[:, self._col]
-        (f0, f1, f2), (d0, d1, d2) = self._from, self._delta
-        return a[:, 0] * (f0 + r * d0) + a[:, 1] * (f1 + r * d1) + a[:, 2] * (f2 + r * d2)
+    def _block_sums(self, rows: np.ndarray) -> list[np.ndarray]:
+        """Sums (3,) of the blocks that ``rows`` (usable, in order) complete; the open block's
+        sum and count carried. Each sum is the sequential one (cumsum from 0.0 or the carried
+        sum), bit for bit what the scalar path adds."""
+        b, need = self.block, self.block - self._count
+        head = np.cumsum(np.vstack([[self._sum], rows[:need]]), axis=0)[-1]
+        if rows.shape[0] < need:
+            self._sum, self._count = head.tolist(), self._count + rows.shape[0]
+            return []
+        rest = rows[need:]
+        nb = rest.shape[0] // b
+        full = np.zeros((3, nb, b + 1))  # each block from 0.0, along the contiguous axis
+        full[:, :, 1:] = rest[:nb * b].T.reshape(3, nb, b)
+        tail = rest[nb * b:]
+        self._sum = np.cumsum(np.vstack([[0.0, 0.0, 0.0], tail]), axis=0)[-1].tolist()
+        self._count = tail.shape[0]
+        return [head, *np.cumsum(full, axis=2)[:, :, -1].T]
 
     def vertical_small(self, data: list[list[float]], finite: list[bool]
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -203,21 +241,21 @@ class Mounting:
             flags.append(self._flag)
             self.degraded += self._flag == _DEGRADED
             if self._count == self.block:
-                self._sum = [s0, s1, s2]
-                self._end_block()
-                s0, s1, s2 = self._sum
+                self._count, self._sum = 0, [0.0, 0.0, 0.0]
+                self._end_block(np.array([s0, s1, s2]))
+                s0, s1, s2 = 0.0, 0.0, 0.0
         self._sum = [s0, s1, s2]
         return np.array(vert), np.array(flags, np.uint8)
 
-    def _end_block(self) -> None:
-        """A block is complete: its mean into the window, a new estimate and decision."""
-        b = self.block
-        self._means.append((self._sum[0] / b, self._sum[1] / b, self._sum[2] / b))
-        self._sum, self._count = [0.0, 0.0, 0.0], 0
+    def _end_block(self, total: np.ndarray) -> None:
+        """A block is complete (its sum (3,)): its mean into the window, a new estimate and
+        decision."""
+        self._means[:, self.blocks % self._means.shape[1]] = total / (
+            self.block if self.blocks else self._first)
         self.blocks += 1
         if self.config.gravity_mps2 == 0:  # the driver removed gravity: nothing to estimate
             return
-        m0, m1, m2 = (float(v) for v in np.median(np.array(self._means), axis=0))
+        m0, m1, m2 = _median(self._means[:, :min(self.blocks, self._means.shape[1])])
         norm = math.hypot(m0, m1, m2)
         if not 0 < norm < math.inf:
             return
@@ -244,15 +282,22 @@ class Mounting:
         degraded = lag > tol or unsettled or steep
         self._flag = _DEGRADED if degraded else _VALID
         self.level = WARN if degraded else OK
-        self.message = self._text(g, tilt, lag, unsettled, steep)
+        self._state = (g, tilt, lag, unsettled, steep)
+        self.version += 1
 
-    def _text(self, g: Vector, tilt: float, lag: float, unsettled: bool, steep: bool) -> str:
+    @property
+    def message(self) -> str:
+        """The 'mounting' finding's one line ('' before the first decision): formatted only
+        when asked (not at every block)."""
+        if self._state is None:
+            return ''
+        g, tilt, lag, unsettled, steep = self._state
         cfg = self.config
         rp = roll_pitch_deg(g, cfg.accel_axis)
         angles = f' (roll {rp[0]:+.2f} deg, pitch {rp[1]:+.2f} deg)' if rp else \
             f' (gravity direction {g[0]:+.4f} {g[1]:+.4f} {g[2]:+.4f})'
-        state = 'settled' if self.settled else f'settling: {self.blocks * BLOCK_S:g} of ' \
-            f'{SETTLE_S:g} s'
+        state = 'settled' if self.settled else f'settling: {self.blocks} of ' \
+            f'{round(SETTLE_S / BLOCK_S)} blocks of {BLOCK_S:g} s'
         text = (f'sensor tilted {tilt:.2f} deg from {cfg.accel_axis}{angles}, estimated from '
                 f'gravity ({state}); mounting {cfg.mounting}')
         if steep:

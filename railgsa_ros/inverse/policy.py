@@ -212,6 +212,7 @@ class InputPolicy:
         self._start_chainage = 0.0
         self._rest = (np.zeros(3), 0)  # sum (3,) m/s^2 and count of the samples at rest
         self.mounting = Mounting(self.config)  #: gravity estimate and vertical projection
+        self._mounting_version = 0  # the decision the 'mounting' finding was made from
         self._check_units()
         if noise_variance is not None:
             self._build()
@@ -429,8 +430,8 @@ class InputPolicy:
     def _mounting_finding(self) -> None:
         """The 'mounting' finding, once the first block has given an estimate."""
         m = self.mounting
-        old = self._findings.get('mounting')
-        if m.message and (old is None or old.message is not m.message):
+        if m.version != self._mounting_version:
+            self._mounting_version = m.version
             self._findings['mounting'] = Finding('mounting', m.level, m.message)
 
     def _frame_check(self, frames: np.ndarray) -> None:
