@@ -68,3 +68,25 @@ def test_context_shut_down_before_the_reader_runs_ends_it_quietly(
         thread.join(2.0)
         assert not thread.is_alive()
     assert thread_errors == []
+
+
+def test_signal_just_after_the_reader_started_is_stopped_by_the_shutdown(
+        ros_context: Any, thread_errors: list[BaseException],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The node's build is interrupted once the reader runs: the context's shutdown (the
+    process's way out) stops and joins the reader, none is left inside a wait at exit."""
+    start = threading.Thread.start
+
+    def started_then_interrupted(self: threading.Thread) -> None:
+        start(self)
+        raise KeyboardInterrupt
+
+    _node, build = _intake(ros_context)
+    with monkeypatch.context() as patch:
+        patch.setattr(threading.Thread, 'start', started_then_interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            build()
+    assert [t.is_alive() for t in _reader_threads()] == [True]
+    ros_context.try_shutdown()
+    assert [t.is_alive() for t in _reader_threads()] == []
+    assert thread_errors == []

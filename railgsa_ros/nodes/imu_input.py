@@ -109,8 +109,11 @@ class ImuIntake:
         self._stopping = False
         self._thread = threading.Thread(target=self._read, daemon=True,
                                         name=f'{node.get_name()}_imu_reader')
+        # before start: a signal may come at any line, also just after start (the build
+        # interrupted, nobody but the shutdown left to stop the reader); stop() joins only a
+        # reader that runs, and one that starts after it returns at once
+        node.context.on_shutdown(self.stop)
         self._thread.start()
-        node.context.on_shutdown(self.stop)  # after start: a signal may come at any line
 
     # ------------------------------------------------------------------ reader thread
     def _read(self) -> None:
