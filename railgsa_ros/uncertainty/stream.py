@@ -226,9 +226,10 @@ class UncertaintyStream:
     def push(self, stamps_ns: np.ndarray, acc_z: np.ndarray,
              speed_mps: np.ndarray | float | None = None,
              frame_ids: np.ndarray | None = None) -> Update:
-        """Transition entry of uncertainty_node until it calls ``odometry``/``imu``: vertical
-        samples straight into the bank pipeline (its sanitiser and delay-line quality only;
-        no speed, noise, gravity or rate decision)."""
+        """Vertical samples straight into the bank pipeline, past the input policy (its
+        sanitiser and delay-line quality only; no speed, noise, mounting, gravity or rate
+        decision): the bank's own tests and benchmarks. The node and the CLI use ``imu`` and
+        ``odometry``."""
         return self.update(self.policy.finish(self.pipeline.push(stamps_ns, acc_z, speed_mps,
                                                                  frame_ids)))
 
