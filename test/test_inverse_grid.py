@@ -139,7 +139,9 @@ def test_distance_band_beats_the_time_domain_band_at_variable_speed():
     # restart hold < 1e-3 of its L1 norm (inverse.pipeline.WINDOW_TOLERANCE), 0.05 mm when the
     # whole FIR had to clear the restart (which left runs of 15 s without a valid output)
     assert distance <= 0.08e-3
-    assert time_domain >= 1.5 * distance  # measured 1.74 (2.0 with the whole FIR)
+    # measured 1.47 (1.74 when a band design took the speed at the first output it served,
+    # not the middle; 2.0 with the whole FIR)
+    assert time_domain >= 1.3 * distance
 
 
 def test_grid_stream_does_not_depend_on_chunking():

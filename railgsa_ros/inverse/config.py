@@ -53,6 +53,10 @@ class InversionConfig:
                                'interpolation); single rate when false or R < 2')
     speed_tolerance: float = _p(0.005, 'relative speed change that triggers a filter redesign',
                                 (1e-4, 1.0))
+    window_speed_tolerance: float = _p(0.05, 'an output is DEGRADED where the speed across its '
+                                             'band window differs from its band design by more '
+                                             'than this fraction (acceleration, braking)',
+                                       (1e-3, 10.0))
     sensor_delay_s: float = _p(0.0, 'group delay of the IMU digital low-pass filter, s: the '
                                      'signal is advanced by it (inverse.sensor.sensor_delay_s '
                                      'gives it for a preset)', (0.0, 1.0))

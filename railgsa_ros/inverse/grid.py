@@ -44,6 +44,10 @@ from railgsa_ros.vehicle import VehicleParams
 
 PRE_FACTOR = 2.0  # the time-domain pre-band reaches this factor beyond each band edge
 PRE_ORDER = 4  # its Butterworth order: |BP|^2 >= 0.998 at the band edges
+#: the pre-band's speed tolerance across its window: a speed 20 % off its design maps the band
+#: edges 1.2 times closer to the pre-band's, where |BP|^2 is still >= 0.985 (the band's own
+#: edges lie at -6 dB); the band on distance follows the speed exactly
+PRE_SPEED_TOLERANCE = 0.2
 GAP_STEPS = 4  # outputs further apart than this many steps: the grid between is DEGRADED
 DEFAULT_STEP_M = 0.25
 
@@ -57,7 +61,8 @@ def pre_band(band: str) -> str:
 def grid_config(config: InversionConfig) -> InversionConfig:
     """The pipeline configuration in front of ``ChainageGrid.for_config(config)``: the same
     settings with the time-domain pre-band of config.band."""
-    return config.with_(band=pre_band(config.band), band_order=PRE_ORDER)
+    return config.with_(band=pre_band(config.band), band_order=PRE_ORDER,
+                        window_speed_tolerance=PRE_SPEED_TOLERANCE)
 
 
 @dataclass(frozen=True)

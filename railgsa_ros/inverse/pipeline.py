@@ -59,7 +59,7 @@ WINDOW_TOLERANCE = 1e-3
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
-_INVALID = int(Quality.INVALID)
+_VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
 
 
 @dataclass(frozen=True)
@@ -120,29 +120,39 @@ class _Meta:
     """Per-sample metadata waiting in the delay line: stamps, chainage, speed, emit flag, input
     quality. Columns with room to grow (a live push appends one sample to D waiting ones; a
     concatenation would copy all D each time); samples are written past the newest only, so
-    the views ``pop`` returns stay valid."""
+    the views ``pop`` returns stay valid. The ``back`` samples popped last stay readable
+    (``speed_at``: the speed behind an output sample's band window)."""
 
     DTYPES = (np.int64, np.float64, np.float64, np.bool_, np.uint8)
     MIN_ROOM = 1024  # samples
 
-    def __init__(self) -> None:
+    def __init__(self, back: int = 0) -> None:
         self._cols = [np.zeros(0, dtype) for dtype in self.DTYPES]
         self._lo = self._hi = 0  # the waiting samples are [_lo, _hi) of every column
+        self._back = back
 
     @property
     def speed(self) -> np.ndarray:
         """Speeds (m/s) of the waiting samples, oldest first."""
         return self._cols[2][self._lo:self._hi]
 
+    @property
+    def speeds(self) -> tuple[np.ndarray, int, int]:
+        """The speed column (m/s), the column index of the oldest waiting sample and that of
+        the newest plus one: the ``back`` samples before the oldest (as far as there were any)
+        and the waiting ones after it are readable."""
+        return self._cols[2], self._lo, self._hi
+
     def extend(self, *values: np.ndarray) -> None:
         """Append (stamps, chainage, speed, emit, quality), all (N,)."""
         n = values[0].size
-        if self._hi + n > self._cols[0].size:  # new columns: the waiting samples, then room
-            size = self._hi - self._lo
+        if self._hi + n > self._cols[0].size:  # new columns: back, waiting samples, room
+            keep = self._lo - max(self._lo - self._back, 0)
+            size = self._hi - self._lo + keep
             room = max(size + n, self.MIN_ROOM)
-            self._cols = [np.concatenate([c[self._lo:self._hi], np.empty(room, c.dtype)])
+            self._cols = [np.concatenate([c[self._lo - keep:self._hi], np.empty(room, c.dtype)])
                           for c in self._cols]
-            self._lo, self._hi = 0, size
+            self._lo, self._hi = keep, size
         for col, value in zip(self._cols, values, strict=True):
             col[self._hi:self._hi + n] = value
         self._hi += n
@@ -234,6 +244,12 @@ class InversionPipeline:
     def chainage_m(self) -> float:
         """Chainage of the newest sample pushed (m); the start chainage before any."""
         return self._chain[1] if self._chain is not None else self.start_chainage_m
+
+    @property
+    def speed_changed(self) -> int:
+        """VALID outputs so far made DEGRADED by the speed change across their band window
+        (``counters['speed_change']``, cheaply)."""
+        return self._counters['speed_change']
 
     @property
     def stability_margin(self) -> float:
@@ -369,7 +385,7 @@ class InversionPipeline:
     def _start_segment(self) -> None:
         """Zero the filters and the segment's sample counter."""
         self._n = 0
-        self._meta = _Meta()
+        self._meta = _Meta(self._window[0] + self._window[1] * self._window[2])
         self._meta_start = 0  # segment index of the oldest sample in the delay line
         self._bridged = np.zeros(0, np.int64)  # segment indices of bridged samples still seen
         self._last_real = np.iinfo(np.int64).max  # segment index of the last real sample (at end)
@@ -490,7 +506,9 @@ class InversionPipeline:
     def _targets(self, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Design speeds (m/s) due at switch boundaries n (segment sample indices still in the
         delay line), NaN where the current design stays: Kalman gains for the newest sample n,
-        band for the output sample n - D; both held at min_design_speed_mps."""
+        band for the middle n - D + P / 2 of the P = ``switch_period`` outputs the design will
+        serve (not their first: under acceleration a the speed then misses by a P / 2 at most,
+        not a P); both held at min_design_speed_mps."""
         keep = np.full(n.shape, np.nan)
         if n.size == 0:  # the usual live push: no switch boundary inside
             return keep, keep
@@ -506,7 +524,9 @@ class InversionPipeline:
             v_kf = due(np.maximum(np.abs(speed[n - self._meta_start]), vmin),
                        self._stage.design.speed)
         if self._fir is not None:
-            v = np.abs(speed[np.maximum(n - self.delay_samples, 0) - self._meta_start])
+            mid = np.minimum(np.minimum(n - self.delay_samples + self.switch_period // 2, n),
+                             self._last_real)  # the end pad has no speed
+            v = np.abs(speed[np.maximum(mid, 0) - self._meta_start])
             v_band = due(np.minimum(np.maximum(v, vmin), cfg.max_speed_mps), self._design_speed)
         return v_kf, v_band
 
@@ -564,14 +584,14 @@ class InversionPipeline:
         [n - w, n + w] (w = ``window_half_width``): INVALID where it reaches into the fade-in
         or before the segment start (n < w + taper) or past the segment's last real sample
         (the tail before a reset or flush), at least DEGRADED where it holds a bridged
-        sample."""
+        sample or where the speed across it is off its band design (``_speed_quality``)."""
         widest = self._window[0] + self._window[1] * self._window[2]
         ramp = round(self.config.taper_s * self.config.rate_hz)
         last = first + quality.size
         if first >= widest + ramp and last - 1 + widest <= self._last_real and (
                 self._bridged.size == 0 or self._bridged[-1] < first - widest):
-            self._bridged = self._bridged[-1:]  # the usual case: nothing to raise
-            return quality
+            self._bridged = self._bridged[-1:]  # the usual case: nothing else to raise
+            return self._speed_quality(first, quality, speed)
         if quality.size <= SMALL and not self._bridged.size:  # per sample, in Python
             fixed, low, r = self._window
             vmin, vmax = self.config.min_design_speed_mps, self.config.max_speed_mps
@@ -581,7 +601,7 @@ class InversionPipeline:
                 w = fixed + r * math.ceil(low * vmin / min(max(v, vmin), vmax))
                 codes.append(max(q, _INVALID if k < w + ramp or k + w > self._last_real
                                  else q))
-            return np.array(codes, np.uint8)
+            return self._speed_quality(first, np.array(codes, np.uint8), speed)
         n = np.arange(first, last)
         w = self.window_half_width(speed)
         out = np.maximum(quality, np.where((n < w + ramp) | (n + w > self._last_real),
@@ -592,7 +612,55 @@ class InversionPipeline:
             out = np.maximum(out, np.where(hits > 0, Quality.DEGRADED, Quality.VALID)
                              ).astype(np.uint8)
             self._bridged = self._bridged[self._bridged >= last - widest]
-        return out
+        return self._speed_quality(first, out, speed)
+
+    def _speed_quality(self, first: int, quality: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """Raise to DEGRADED the outputs at segment indices first.. whose band window sees
+        speeds off their band design by more than ``window_speed_tolerance`` (relative), and
+        count the VALID ones it raises as ``speed_change``. The time-domain band maps the
+        wavelengths across its window [n - w, n + w] by the design speed: the speed there is
+        off the output's own v(n) by up to dw = max |v(n +- w) - v(n)|, and the design by up
+        to dp = max |v(n +- P / 2) - v(n)| (it is the speed in the middle of the P =
+        ``switch_period`` outputs it serves) plus ``speed_tolerance``: DEGRADED where
+        (dw + dp) / v(n) + speed_tolerance exceeds the tolerance. Speeds are held at
+        min_design_speed_mps and max_speed_mps as the design is; the bound does not depend on
+        D, so a bank and its nominal pipeline grade alike."""
+        if self._fir is None:  # no band FIR: no wavelength mapping
+            return quality
+        cfg = self.config
+        vmin, vmax = cfg.min_design_speed_mps, cfg.max_speed_mps
+        tol = cfg.window_speed_tolerance - cfg.speed_tolerance
+        fixed, low, r = self._window
+        half = self.switch_period // 2
+        col, lo, hi = self._meta.speeds
+        base = lo - self._meta_start  # column index of segment index 0 (may be < 0)
+        floor, top = max(base, 0), hi - 1  # the oldest and newest readable samples
+        if quality.size <= SMALL:  # per sample, in Python
+            codes, raised = quality.tolist(), 0
+            for i, v in enumerate(np.abs(speed).tolist()):
+                j = base + first + i
+                vc = min(max(v, vmin), vmax)
+                w = fixed + r * math.ceil(low * vmin / vc)
+                dw, dp = (max(abs(min(max(abs(float(col[max(j - h, floor)])), vmin), vmax) - vc),
+                              abs(min(max(abs(float(col[min(j + h, top)])), vmin), vmax) - vc))
+                          for h in (w, half))
+                if dw + dp > tol * vc:
+                    raised += codes[i] == _VALID
+                    codes[i] = max(codes[i], _DEGRADED)
+            self._counters['speed_change'] += raised
+            return np.array(codes, np.uint8)
+        j = base + np.arange(first, first + quality.size)
+        vc = np.clip(np.abs(speed), vmin, vmax)
+        off = np.zeros(quality.size)
+        for h in (self.window_half_width(speed), half):
+            back = np.clip(np.abs(col[np.maximum(j - h, floor)]), vmin, vmax)
+            ahead = np.clip(np.abs(col[np.minimum(j + h, top)]), vmin, vmax)
+            off += np.maximum(np.abs(back - vc), np.abs(ahead - vc))
+        raise_ = off > tol * vc
+        if not raise_.any():
+            return quality
+        self._counters['speed_change'] += int(np.count_nonzero(raise_ & (quality == _VALID)))
+        return np.maximum(quality, np.where(raise_, _DEGRADED, _VALID)).astype(np.uint8)
 
     def _end_segment(self) -> Output:
         """Emit the samples waiting for a gap's hold, pad the segment with a faded-out

@@ -114,9 +114,9 @@ class PolicyOptions:
 
 @dataclass(frozen=True)
 class Finding:
-    """One plausibility verdict: key ('gravity', 'rate', 'rest', 'mounting', 'speed',
-    'odometry', 'frame', 'rejected', 'noise'), level (OK/WARN/ERROR) and a one-line message
-    saying what to do."""
+    """One plausibility verdict: key ('gravity', 'rate', 'jitter', 'rest', 'mounting',
+    'speed', 'odometry', 'frame', 'rejected', 'acceleration', 'noise'), level (OK/WARN/ERROR)
+    and a one-line message saying what to do."""
 
     key: str
     level: int
@@ -398,6 +398,7 @@ class InputPolicy:
             cfg, self.bank if self.bank is not None else self.theta, variance,
             start_chainage_m=self._start_chainage, stuck_s=opt.stuck_s,
             backward_reset_s=opt.backward_reset_s, nominal=self.theta)
+        self._speed_changed = 0  # the new pipeline's speed_change count seen so far
         self.noise = NoiseFloor(self.theta, cfg.band, cfg.band_order, cfg.rate_hz, variance)
         self.v_invalid = self.noise.speed_for(cfg.noise_limit_m)
         self.v_degraded = max(self.noise.speed_for(cfg.noise_limit_m / 2), self.v_invalid)
@@ -695,6 +696,25 @@ class InputPolicy:
         self._reject_finding(count, pipeline.accepted - before)
         return self.finish(out)
 
+    def _acceleration_finding(self, changed: int) -> None:
+        """WARN while outputs are DEGRADED for the speed change across their band window
+        (``changed``: the pipeline's count so far), OK again once outputs come without."""
+        if changed == self._speed_changed and 'acceleration' not in self._findings:
+            return  # the usual case: steady speed, nothing reported yet
+        total = changed + self._retired['speed_change']
+        tol = self.config.window_speed_tolerance
+        if changed != self._speed_changed:
+            self._speed_changed = changed
+            self._findings['acceleration'] = Finding('acceleration', WARN, (
+                f'{total} outputs DEGRADED so far: the speed changed by more than {tol:.0%} '
+                'across their band window (acceleration, braking), so the time-domain band '
+                'maps wavelengths off the band; the band on distance (--grid) follows the '
+                'speed'))
+        elif self._findings['acceleration'].level != OK:
+            self._findings['acceleration'] = Finding('acceleration', OK, (
+                f'speed steady across the band windows ({total} outputs DEGRADED by speed '
+                'changes so far)'))
+
     def _speed_finding(self, unknown: int, reverse: int, last_known: bool) -> None:
         """Count the samples of a release without a speed and at negative speed; the 'speed'
         finding (``last_known``: the newest one has a speed)."""
@@ -761,10 +781,13 @@ class InputPolicy:
             f'every IMU sample is rejected ({text}): {_HINTS[top]}'))
 
     def finish(self, out: Output) -> Output:
-        """Count pipeline outputs by quality and set u = NaN where INVALID."""
+        """Count pipeline outputs by quality, the 'acceleration' finding, and set u = NaN
+        where INVALID."""
         if not len(out) or out.quality is None:
             return out
         self._counts.update(quality_counts(out.quality))
+        if self.pipeline is not None:
+            self._acceleration_finding(self.pipeline.speed_changed)
         invalid = np.asarray(out.quality == _INVALID)
         if not invalid.any():
             return out

@@ -3,11 +3,14 @@
 VALID: the sample is within the documented accuracy of the method. DEGRADED: published, but
 less certain (its band is widened): the band FIR window overlaps bridged (interpolated) input,
 the speed is below ``min_design_speed_mps`` or above ``max_speed_mps`` (the band design is held,
-so the reconstructed wavelength band is shifted), or the sensor noise propagated into the band
-exceeds half of ``noise_limit_m``. INVALID: not a measurement (u = NaN): standstill or too slow
-for the band to be observable, unknown speed, the warm-up after a (re)start and the tail before
-a reset or flush (the FIR window reaches past the segment's real samples), gravity not on the
-configured axis, or a sample rate that disagrees with ``rate_hz``.
+so the reconstructed wavelength band is shifted), the speed across the window is off the band
+design by more than ``window_speed_tolerance`` (acceleration, braking), samples were lost
+between close stamps or the stamp jitter exceeds ``rate.JITTER_TOLERANCE`` periods, or the
+sensor noise propagated into the band exceeds half of ``noise_limit_m``. INVALID: not a
+measurement (u = NaN): standstill or too slow for the band to be observable, unknown speed, the
+warm-up after a (re)start and the tail before a reset or flush (the FIR window reaches past the
+segment's real samples), gravity not on the configured axis, or a sample rate that disagrees
+with ``rate_hz``.
 """
 
 from __future__ import annotations
