@@ -47,7 +47,7 @@ from railgsa_ros.inverse.mounting import Mounting
 from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality, quality_counts
-from railgsa_ros.inverse.rate import count_steps
+from railgsa_ros.inverse.rate import JITTER_TOLERANCE, count_steps
 from railgsa_ros.inverse.sanitize import REASONS, SMALL, SPEED_LIMIT_MPS, frame_mask
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
@@ -56,7 +56,7 @@ NOISE_SAMPLES = 64  #: IMU samples whose reported variances decide the noise
 HOLD_SAMPLES = 1 << 16  #: an IMU sample waits for odometry at most this many later samples
 GRAVITY_TAU_S = 1.0  #: time constant of the per-axis running mean that finds gravity, s
 GRAVITY_TOLERANCE = 0.25  #: the vertical axis must read gravity within this fraction
-RATE_BLOCK = 512  #: stamp steps per rate measurement (median: robust to dropouts and jitter)
+RATE_BLOCK = 512  #: stamp steps per rate measurement (``inverse.rate``: counted per stamp)
 REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
 REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
@@ -543,10 +543,10 @@ class InputPolicy:
                                t[:-1]])
         steps = t - prev
         self._rate_prev = int(t[-1])
-        positive = steps > 0
+        nonzero = steps != 0  # backward steps too: under jitter the stamps telescope
         fill = self._rate_fill
-        cum = np.concatenate([[fill], fill + np.cumsum(positive)])  # open-block step count
-        pool = np.concatenate([self._rate_steps[:fill], steps[positive]])
+        cum = np.concatenate([[fill], fill + np.cumsum(nonzero)])  # open-block step count
+        pool = np.concatenate([self._rate_steps[:fill], steps[nonzero]])
         state = np.full(idx.size, self._rate_state, np.uint8)
         for b in range(pool.size // RATE_BLOCK):
             done = int(np.searchsorted(cum[1:], (b + 1) * RATE_BLOCK))  # completing sample
@@ -569,7 +569,7 @@ class InputPolicy:
             step = (t - (t if prev is None else prev) + (1 << 63)) % (1 << 64) - (1 << 63)
             prev, flags[i] = t, state
             invalid += state == _INVALID
-            if step > 0:
+            if step != 0:
                 self._rate_steps[self._rate_fill] = step
                 self._rate_fill += 1
                 if self._rate_fill == RATE_BLOCK:
@@ -579,19 +579,17 @@ class InputPolicy:
         return np.array(flags, np.uint8)
 
     def _rate_block(self, steps: np.ndarray) -> int:
-        """The verdict on one full block of RATE_BLOCK stamp steps (ns): the 'rate' finding;
-        returns the quality code of the samples after it: INVALID at another rate, DEGRADED
-        after samples lost without a gap (the record closes up around them: its time axis is
-        compressed), counted as ``lost`` (:mod:`railgsa_ros.inverse.rate`)."""
+        """The verdict on one full block of RATE_BLOCK stamp steps (ns): the 'rate' and
+        'jitter' findings; returns the quality code of the samples after it: INVALID at another
+        rate, DEGRADED after samples lost without a gap (the record closes up around them: its
+        time axis is compressed), counted as ``lost``, and under stamp jitter beyond
+        JITTER_TOLERANCE periods (stamps reorder, so samples are rejected and lost ones
+        cannot be counted), counted as ``jitter`` (:mod:`railgsa_ros.inverse.rate`)."""
         cfg = self.config
         counted = count_steps(steps, 1e9 / cfg.rate_hz, cfg.gap_factor)
-        # with lost samples the median step is pulled up (2 % at one in ten), so the counted
-        # rate is measured; without, the median, whose scatter under heavy jitter (0.2 ms) is
-        # half the counted rate's (a step rounded to the wrong count shifts every later one)
-        losing = counted.lost_significant
-        measured = counted.rate_hz if losing else 1e9 / float(np.median(steps))
+        measured = counted.rate_hz  # counted per stamp: robust to jitter and lost samples
         ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
-        lost = counted.lost if ok and losing else 0
+        lost = counted.lost if ok and counted.lost_significant else 0
         self._counts['lost'] += lost
         text = (f'measured IMU rate {measured:.6g} Hz, rate_hz {cfg.rate_hz:g}' if ok else
                 f'measured IMU rate {measured:.6g} Hz differs from rate_hz {cfg.rate_hz:g} '
@@ -602,8 +600,24 @@ class InputPolicy:
                      'more periods): outputs DEGRADED until a block has none')
         self._findings['rate'] = Finding('rate', ERROR if not ok else WARN if lost else OK,
                                          text)
-        self._rate_state = _INVALID if not ok else _DEGRADED if lost else _VALID
+        self._jitter_finding(counted.jitter_s, counted.heavy)
+        heavy = ok and counted.heavy
+        self._rate_state = _INVALID if not ok else _DEGRADED if lost or heavy else _VALID
         return self._rate_state
+
+    def _jitter_finding(self, jitter_s: float, heavy: bool) -> None:
+        """The 'jitter' finding of one rate block (robust std of the stamp errors, s)."""
+        share = jitter_s * self.config.rate_hz
+        level = f'IMU stamp jitter {jitter_s * 1e3:.3g} ms std ({share:.0%} of the period)'
+        if heavy:
+            self._counts['jitter'] += RATE_BLOCK
+            self._findings['jitter'] = Finding('jitter', WARN, (
+                f'{level} exceeds {JITTER_TOLERANCE:.0%}: stamps reorder (rejected as '
+                'out_of_order) and lost samples cannot be told from jitter; outputs DEGRADED '
+                'until a block has less: stamp the samples with the sensor clock, not on '
+                'arrival'))
+        elif 'jitter' in self._findings:  # reported once it was too much
+            self._findings['jitter'] = Finding('jitter', OK, f'{level}: harmless')
 
     # ------------------------------------------------------------------ odometry and release
     def _add_odometry(self, t: int, v: float) -> None:

@@ -205,7 +205,7 @@ class ImuIntake:
         for key in ('received', 'accepted', 'gap', 'reset', 'time_reset', 'bridged',
                     'wrong_frame_accepted', 'odom_received', 'odom_malformed', 'odom_nan',
                     'odom_implausible', 'odom_out_of_order', 'speed_unknown', 'reverse',
-                    'gravity_invalid', 'rate_invalid', 'lost'):
+                    'gravity_invalid', 'rate_invalid', 'lost', 'jitter', 'speed_change'):
             values[key] = totals.get(key, 0)
         values['rejected'] = sum(totals.get(r, 0) for r in REJECT_REASONS)
         values.update({f'rejected_{r}': totals.get(r, 0) for r in REJECT_REASONS})
