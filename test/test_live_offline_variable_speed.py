@@ -56,7 +56,9 @@ def test_live_equals_offline_at_variable_speed_with_a_stop(tmp_path: Path, ros_c
     off_irr = read_stamped(out, IRR, POINT_STAMPED.msgtype)
     off_band = read_stamped(out, BAND, VECTOR3_STAMPED.msgtype)
     quality = off_irr.values[:, 1]
-    assert {0, 2} <= set(quality.tolist())  # valid while running, invalid at the stop
+    # published while running (DEGRADED: the speed changes across every band window of this
+    # short run), invalid at the stop
+    assert {1, 2} <= set(quality.tolist())
     probe = Probe(spin, ros_context, 2 * run.stamps_ns.size, outputs=True)
     live = run_complete(tmp_path, bag, run.stamps_ns.size, probe, RATE)
     for name in (IRR_NODE, UNC_NODE):

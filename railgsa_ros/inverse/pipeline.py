@@ -649,14 +649,14 @@ class InversionPipeline:
                     codes[i] = max(codes[i], _DEGRADED)
             self._counters['speed_change'] += raised
             return np.array(codes, np.uint8)
-        j = base + np.arange(first, first + quality.size)
-        vc = np.clip(np.abs(speed), vmin, vmax)
+        at = base + np.arange(first, first + quality.size)
+        own = np.clip(np.abs(speed), vmin, vmax)
         off = np.zeros(quality.size)
-        for h in (self.window_half_width(speed), half):
-            back = np.clip(np.abs(col[np.maximum(j - h, floor)]), vmin, vmax)
-            ahead = np.clip(np.abs(col[np.minimum(j + h, top)]), vmin, vmax)
-            off += np.maximum(np.abs(back - vc), np.abs(ahead - vc))
-        raise_ = off > tol * vc
+        for reach in (self.window_half_width(speed), np.full(at.size, half)):
+            back = np.clip(np.abs(col[np.maximum(at - reach, floor)]), vmin, vmax)
+            ahead = np.clip(np.abs(col[np.minimum(at + reach, top)]), vmin, vmax)
+            off += np.maximum(np.abs(back - own), np.abs(ahead - own))
+        raise_ = off > tol * own
         if not raise_.any():
             return quality
         self._counters['speed_change'] += int(np.count_nonzero(raise_ & (quality == _VALID)))
