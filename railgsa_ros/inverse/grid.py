@@ -2,7 +2,7 @@
 
 EN 13848 bands are wavelength bands. At constant speed a time-domain band is the same filter;
 at variable speed its design follows the speed only sample by sample, so when the train
-accelerates or brakes its window maps wavelengths off the band (measured: 0.12 mm RMS D1 error
+accelerates or brakes its window maps wavelengths off the band (measured: 0.11 mm RMS D1 error
 on a run with 1.6 m/s^2 braking and a stop, against 0.07 mm for this grid; docs/inversion.md,
 "Band on distance"). ``ChainageGrid`` takes the outputs of a pipeline run with the wider
 time-domain pre-band ``pre_band(band)`` (a factor PRE_FACTOR beyond each edge, order
