@@ -89,10 +89,12 @@ def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarra
     the S surrogate samples c_0 + c[1:] @ germ_basis: the two ranks around each quantile are
     selected exactly by :func:`order_statistics` (2.1 us per row of 1024 on one core, where
     ``np.quantile``'s partition takes 12 us) and interpolated as ``np.quantile`` does. The
-    products run as stacked (GEMM_ROWS, T - 1) x (T - 1, S) BLAS calls: each call stays below
-    OpenBLAS's threading threshold, so a multi-threaded OpenBLAS never spins threads here (on
-    the loaded 2-core machine that took 22 ms for one (50, 19) x (19, 1024) product), the sums
-    of each row are the same whatever the chunking, and it is 20x faster than einsum.
+    products run as stacked (GEMM_ROWS, T) x (T, S) BLAS calls, the sensor std being one more
+    coefficient of the noise germ (the sum's last rounding is BLAS's: a separate outer product
+    and addition took as long as the product itself, 0.75 us per row of 1024): each call stays
+    below OpenBLAS's threading threshold, so a multi-threaded OpenBLAS never spins threads here
+    (on the loaded 2-core machine that took 22 ms for one (50, 19) x (19, 1024) product), the
+    sums of each row are the same whatever the chunking, and it is 20x faster than einsum.
     """
     coef = pce_coefficients(design, u)
     count, size = coef.shape[0], design.germ_basis.shape[1]
@@ -100,17 +102,16 @@ def band_statistics(design: Design, quantiles: tuple[float, float], u: np.ndarra
     rank = np.floor(pos).astype(np.int64)
     frac = pos - rank
     rows = -(-count // GEMM_ROWS) * GEMM_ROWS
-    dev = np.zeros((rows, coef.shape[1] - 1))
-    dev[:count] = coef[:, 1:]
-    sensor = np.zeros(rows)
+    dev = np.zeros((rows, coef.shape[1]))  # c[1:] and the sensor std: one product
+    dev[:count, :-1] = coef[:, 1:]
     if sensor_std_m is not None:
-        sensor[:count] = sensor_std_m
+        dev[:count, -1] = sensor_std_m
+    germ = np.vstack([design.germ_basis, design.noise_germ])  # (T, S)
     bounds = np.empty((rows, 2))
     for lo in range(0, rows, BLOCK):
         block = dev[lo:lo + BLOCK]
-        surrogate = (block.reshape(-1, GEMM_ROWS, block.shape[1]) @ design.germ_basis
+        surrogate = (block.reshape(-1, GEMM_ROWS, block.shape[1]) @ germ
                      ).reshape(block.shape[0], size)  # deviations from the mean, (K', S)
-        surrogate += sensor[lo:lo + BLOCK, None] * design.noise_germ
         picked = order_statistics(surrogate, np.concatenate([rank, rank + 1]))
         below, above = picked[:, :2], picked[:, 2:]
         bounds[lo:lo + BLOCK] = below + (above - below) * frac
