@@ -28,7 +28,10 @@ pytestmark = pytest.mark.ros
 
 REPO = Path(__file__).resolve().parents[1]
 #: a short band delay (about 1.8 s) keeps the tests fast; no odometry unless a test wants it
-PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0}
+#: reorder_window_s 0: these tests count each decision as its sample arrives (the re-order
+#: window's latency and its replay equivalence: test_bag_order.py)
+PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0,
+          'reorder_window_s': 0.0}
 #: the Rig's node keeps the last D samples until a test flushes them (no idle flush), and its
 #: reader and writer histories hold a whole test run (these tests are about decisions; the
 #: transport at the default depths is test_no_lost_outputs.py's)

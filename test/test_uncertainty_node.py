@@ -25,9 +25,11 @@ from ros_helpers import (
 
 pytestmark = pytest.mark.ros
 
-#: a short band delay keeps the tests fast; 1 s windows; no odometry
+#: a short band delay keeps the tests fast; 1 s windows; no odometry; no re-order window (the
+#: references push without a flush; the window's replay equivalence: test_bag_order.py)
 PARAMS = {'use_odom': False, 'speed_mps': 40.0, 'min_design_speed_mps': 40.0,
-          'window_length': 1.0, 'n_mc': 4096, 'process_period_s': 0.02}
+          'window_length': 1.0, 'n_mc': 4096, 'process_period_s': 0.02,
+          'reorder_window_s': 0.0}
 DEPTH = 5000  # listener history: a whole run, so that no burst of outputs overwrites another
 
 
@@ -59,7 +61,8 @@ def node_config() -> Any:
     from railgsa_ros.uncertainty import UncertaintyConfig
 
     return UncertaintyConfig.from_mapping({k: v for k, v in PARAMS.items()
-                                           if k not in ('use_odom', 'process_period_s')})
+                                           if k not in ('use_odom', 'process_period_s',
+                                                        'reorder_window_s')})
 
 
 class Listener:
@@ -285,7 +288,8 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     config = node_config().with_(qoi='', inversion=node_config().inversion.with_(
         method='kalman', band='none'))
     ref = UncertaintyStream(config, noise_variance=4e-6,
-                            options=PolicyOptions(use_odom=True, odom_timeout_s=10.0))
+                            options=PolicyOptions(use_odom=True, odom_timeout_s=10.0,
+                                                  reorder_window_s=0.0))
     accel = np.zeros((len(stamps), 3))
     accel[:, 2] = acc
     want = [ref.odometry([stamps[0]], [25.0]).band, ref.imu(stamps, accel).band,

@@ -25,7 +25,8 @@ TRANSPORT = frozenset({'imu_qos_depth', 'imu_reliability', 'odom_reliability',
                        'sensitivity_qos_depth', 'autostart', 'idle_flush_s', 'flush_rate_hz'})
 #: live-node input settings that the offline commands do not apply (refused: a silent
 #: default would differ from the node)
-NODE_INPUT = ('use_odom', 'odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s')
+NODE_INPUT = ('use_odom', 'odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s',
+              'reorder_window_s')
 VEHICLE_HINT = ('a vehicle parameter: the offline commands take the vehicle from --vehicle FILE '
                 '(a "vehicle:" file such as config/vehicle.yaml)')
 

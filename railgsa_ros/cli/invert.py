@@ -95,7 +95,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 #: the input options of the nodes that the offline commands apply from --params (use_odom is
 #: --speed here)
-POLICY_PARAMS = ('odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s')
+POLICY_PARAMS = ('odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_reset_s',
+                 'reorder_window_s')
 
 
 def build_config(args: argparse.Namespace, rate_hz: float

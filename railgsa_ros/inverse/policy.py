@@ -48,6 +48,7 @@ from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality, quality_counts
 from railgsa_ros.inverse.rate import JITTER_TOLERANCE, count_steps
+from railgsa_ros.inverse.reorder import Reorder
 from railgsa_ros.inverse.sanitize import REASONS, SMALL, SPEED_LIMIT_MPS, frame_mask
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
@@ -60,6 +61,9 @@ RATE_BLOCK = 512  #: stamp steps per rate measurement (``inverse.rate``: counted
 REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
 REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
+#: default re-order window, s: a recorder's receipt jitter and a driver's bursts are a few ms
+REORDER_WINDOW_S = 0.05
+REORDER_CAP = 4  #: the re-order buffer holds at most this many windows of samples at rate_hz
 AXES = 'xyz'
 _VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
 
@@ -86,7 +90,9 @@ class PolicyOptions:
     use_odom: speed from odometry (false: ``speed_mps`` for every sample); odom_timeout_s (s):
     odometry older than this is missing; wrong_frame_policy: 'accept' (default: a driver's own
     frame_id is used, with a WARN finding) or 'reject' (strict: such samples are rejected);
-    stuck_s (s, 0 = off) and backward_reset_s (s): see ``InputSanitizer``.
+    stuck_s (s, 0 = off) and backward_reset_s (s): see ``InputSanitizer``; reorder_window_s
+    (s, 0 = off): IMU samples are re-ordered by header stamp within this window before any
+    other decision (``inverse.reorder``; it adds this much latency).
     """
 
     use_odom: bool = True
@@ -94,6 +100,7 @@ class PolicyOptions:
     wrong_frame_policy: str = 'accept'
     stuck_s: float = 0.5
     backward_reset_s: float = 1.0
+    reorder_window_s: float = REORDER_WINDOW_S
 
     def __post_init__(self) -> None:
         if self.wrong_frame_policy not in ('accept', 'reject'):
@@ -105,6 +112,9 @@ class PolicyOptions:
                 raise ConfigError(f'{name}: expected a positive number of s, got {value!r}')
         if not (np.isfinite(self.stuck_s) and self.stuck_s >= 0):
             raise ConfigError(f'stuck_s: expected >= 0 s, got {self.stuck_s!r}')
+        if not (0 <= self.reorder_window_s < self.backward_reset_s):
+            raise ConfigError(f'reorder_window_s: expected >= 0 s and below backward_reset_s '
+                              f'({self.backward_reset_s:g} s), got {self.reorder_window_s!r}')
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> PolicyOptions:
@@ -213,6 +223,7 @@ class InputPolicy:
         self._rest = (np.zeros(3), 0)  # sum (3,) m/s^2 and count of the samples at rest
         self.mounting = Mounting(self.config)  #: gravity estimate and vertical projection
         self._mounting_version = 0  # the decision the 'mounting' finding was made from
+        self._reorder = Reorder(*self._reorder_limits())
         self._check_units()
         if noise_variance is not None:
             self._build()
@@ -225,8 +236,13 @@ class InputPolicy:
 
     @property
     def held(self) -> int:
-        """IMU samples waiting for their speed decision (or the noise decision)."""
-        return len(self._held)
+        """IMU samples waiting for their stamp order, speed decision or the noise decision."""
+        return len(self._held) + self._reorder.held
+
+    @property
+    def reordering(self) -> int:
+        """IMU samples in the re-order buffer (waiting for their stamp order)."""
+        return self._reorder.held
 
     @property
     def chainage_m(self) -> float:
@@ -236,13 +252,14 @@ class InputPolicy:
     @property
     def counters(self) -> dict[str, int]:
         """Counts by reason: the sanitiser's and the pipeline's (over every rebuild), plus
+        reordered and late (IMU samples re-ordered within reorder_window_s, and beyond it),
         odom_received, odom_nan, odom_implausible, odom_out_of_order, odom_time_reset,
         speed_unknown, reverse, gravity_invalid, rate_invalid, lost (samples missing between
         stamps closer than a gap), wrong_frame_accepted and the
         emitted outputs by quality: valid, degraded, invalid."""
         live = Counter(self.pipeline.counters) if self.pipeline is not None else Counter()
         mounting = Counter({'mounting_degraded': self.mounting.degraded})
-        return dict(self._retired + live + self._counts + mounting)
+        return dict(self._retired + live + self._counts + mounting + self._reorder.counters)
 
     @property
     def findings(self) -> list[Finding]:
@@ -291,9 +308,22 @@ class InputPolicy:
             raise ConfigError(f'accel: expected shape ({stamps.size}, 3), got {accel.shape}')
         frames = np.full(stamps.size, self.config.frame_id, dtype=object) \
             if frame_ids is None else np.asarray(frame_ids, dtype=object)
+        cov = None if covariance is None else \
+            np.asarray(covariance, dtype=float).reshape(stamps.size, 9)
+        before = self._reorder.counters.total()
+        released = self._reorder.push(stamps, accel, frames, cov)
+        if self._reorder.counters.total() != before:
+            self._order_finding()
+        return self._intake(*released)
+
+    def _intake(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
+                cov: np.ndarray | None) -> Output:
+        """IMU samples released by the re-order buffer (stamp order): the arrival checks, then
+        held for their speed decision; returns the outputs now final."""
+        if stamps.size == 0:
+            return self._release(final=False)
         small = stamps.size <= SMALL
-        if covariance is not None:
-            cov = np.asarray(covariance, dtype=float).reshape(stamps.size, 9)
+        if cov is not None:
             if small and self._received >= NOISE_SAMPLES:  # the mask only where needed
                 for i, c in enumerate(cov[:, 0].tolist()):
                     if c != c or c == -1.0:
@@ -328,7 +358,8 @@ class InputPolicy:
     def flush(self) -> Output:
         """End of the input (offline end, node idle timeout, deactivate, shutdown): decide every
         held sample and emit everything pending; the next sample starts afresh."""
-        out = self._release(final=True)
+        drained = self._intake(*self._reorder.drain())
+        out = Output.concat([drained, self._release(final=True)], self._channels)
         if self.pipeline is None:
             return out
         return Output.concat([out, self.finish(self.pipeline.flush())], self._channels)
@@ -356,6 +387,7 @@ class InputPolicy:
         self.theta = as_theta(vehicle) if vehicle is not None else self.theta
         self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
         self.options = options if options is not None else self.options
+        self._reorder.configure(*self._reorder_limits())
         self._counts['rebuild'] += 1
         self.mounting.configure(self.config)
         self._check_units()
@@ -384,6 +416,28 @@ class InputPolicy:
 
     def _empty(self) -> Output:
         return Output.concat([], self._channels)
+
+    def _reorder_limits(self) -> tuple[float, float, int]:
+        """The re-order buffer's window (s), backward jump (s) and cap (samples)."""
+        opt = self.options
+        cap = max(SMALL, int(np.ceil(REORDER_CAP * opt.reorder_window_s * self.config.rate_hz)))
+        return opt.reorder_window_s, opt.backward_reset_s, cap
+
+    def _order_finding(self) -> None:
+        """The 'order' finding: IMU stamps out of arrival order, re-ordered or late."""
+        counts, largest = self._reorder.counters, self._reorder.largest_ns
+        window = self.options.reorder_window_s
+        if counts['late']:
+            self._findings['order'] = Finding('order', WARN, (
+                f'{counts["late"]} IMU samples arrived more than reorder_window_s '
+                f'({window * 1e3:g} ms) after a newer stamp (by up to '
+                f'{largest["late"] / 1e6:.4g} ms): not re-ordered, rejected as out_of_order; '
+                'check the driver clock, or raise reorder_window_s above that'))
+        else:
+            self._findings['order'] = Finding('order', OK, (
+                f'{counts["reordered"]} IMU samples re-ordered by header stamp (by up to '
+                f'{largest["reordered"] / 1e6:.4g} ms, within reorder_window_s '
+                f'{window * 1e3:g} ms)'))
 
     def _check_units(self) -> None:
         if self.options.use_odom is False and self.config.speed_mps <= 0:

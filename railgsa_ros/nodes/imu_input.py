@@ -198,18 +198,20 @@ class ImuIntake:
     def report(self, totals: Mapping[str, int], delta: Mapping[str, int], elapsed_s: float,
                expected_frame_id: str) -> Report:
         """The 'imu input' task: STALE before the first message, WARN without input in the
-        period or with rejections, gaps, time resets or accepted wrong frames in it, else OK;
+        period or with rejections, gaps, time resets, samples later than the re-order window or
+        accepted wrong frames in it, else OK;
         totals and period deltas."""
         values: dict[str, object] = {'topic': self.imu.topic_name,
                                      'rate_hz': delta.get('received', 0) / elapsed_s}
         for key in ('received', 'accepted', 'gap', 'reset', 'time_reset', 'bridged',
                     'wrong_frame_accepted', 'odom_received', 'odom_malformed', 'odom_nan',
                     'odom_implausible', 'odom_out_of_order', 'speed_unknown', 'reverse',
-                    'gravity_invalid', 'rate_invalid', 'lost', 'jitter', 'speed_change'):
+                    'gravity_invalid', 'rate_invalid', 'lost', 'jitter', 'speed_change',
+                    'reordered', 'late'):
             values[key] = totals.get(key, 0)
         values['rejected'] = sum(totals.get(r, 0) for r in REJECT_REASONS)
         values.update({f'rejected_{r}': totals.get(r, 0) for r in REJECT_REASONS})
-        recent = {r: delta[r] for r in (*REJECT_REASONS, 'gap', 'time_reset',
+        recent = {r: delta[r] for r in (*REJECT_REASONS, 'gap', 'time_reset', 'late',
                                         'wrong_frame_accepted') if delta.get(r, 0)}
         values['last_period'] = ', '.join(f'{k} {v}' for k, v in recent.items()) or 'clean'
         values['expected_frame_id'] = expected_frame_id

@@ -18,6 +18,7 @@ from dataclasses import fields
 from typing import Any
 
 from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.policy import REORDER_WINDOW_S
 from railgsa_ros.location import DIRECTIONS
 from railgsa_ros.nodes.params import ParamSpec
 from railgsa_ros.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH
@@ -72,6 +73,10 @@ NODE_SPECS = (
     ParamSpec('backward_reset_s', 1.0, 'stamps going backwards by more than this (a looped bag, '
               'a sim-time reset) restart the filters instead of being rejected, s',
               (0.001, 1e6)),
+    ParamSpec('reorder_window_s', REORDER_WINDOW_S, 'IMU samples are re-ordered by header '
+              'stamp within this window (stamps locally out of arrival order: bursts, several '
+              'threads, receipt jitter); it delays every output by as much; later ones are '
+              'rejected as out_of_order; 0 = off, s', (0.0, 0.5)),
     ParamSpec('idle_flush_s', 2.0, 'no IMU message for this long (steady clock) ends the stream: '
               'the samples pending in the band filter (about 7 s) are flushed and published; '
               'keep it above max_bridge_s (1.2 s) so that a bridged dropout is no stream end, s',
