@@ -82,9 +82,10 @@ def peek(pieces: Iterable[ImuStream]) -> tuple[ImuStream, Iterator[ImuStream]]:
 
 def nominal_rate_hz(piece: ImuStream, source: Source) -> float:
     """IMU rate (Hz) of a piece (the first one: 65 s at 1 kHz): the periods counted from the
-    median step's over their time (``inverse.rate``: robust to jitter and lost samples);
-    InputError when it has no two distinct stamps."""
-    steps = np.diff(piece.stamps_ns)
+    median step's over their time (``inverse.rate``: robust to jitter and lost samples), in
+    stamp order (the policy re-orders the stamps; arrival order would add negative and double
+    steps); InputError when it has no two distinct stamps."""
+    steps = np.diff(np.sort(piece.stamps_ns))
     steps = steps[steps > 0]
     if steps.size == 0:
         raise InputError(f'{source.bag}: {source.imu_topic} needs at least two distinct stamps')
