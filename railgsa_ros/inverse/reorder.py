@@ -19,8 +19,11 @@ the samples of one window, at most ``cap``.
 from __future__ import annotations
 
 from collections import Counter
+import itertools
 
 import numpy as np
+
+from railgsa_ros.inverse.sanitize import SMALL
 
 #: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
@@ -58,6 +61,10 @@ class Reorder:
     def push(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
              cov: np.ndarray | None) -> Columns:
         """Samples in arrival order; returns those released now, in release order."""
+        if stamps.size <= SMALL:
+            fast = self._in_order(stamps, accel, frames, cov)
+            if fast is not None:
+                return fast
         out, start = [], 0
         while start < stamps.size:  # one stream per backward jump beyond backward_ns
             base = stamps[start] if self._newest == _NONE else self._newest
@@ -73,7 +80,7 @@ class Reorder:
             if end < stamps.size:  # a new stream: release everything held before it
                 out.append(self.drain())
             start = end
-        return _join(out, stamps, accel, frames, cov)
+        return _join(out, (stamps, accel, frames, cov))
 
     def drain(self) -> Columns:
         """Release every held sample (end of input or of a stream); the next starts afresh."""
@@ -82,6 +89,35 @@ class Reorder:
         if held is None:
             return _empty()
         return held
+
+    def _in_order(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
+                  cov: np.ndarray | None) -> Columns | None:
+        """What ``_segment`` returns for a live push of a few samples in stamp order after the
+        newest one, none held for ``cap`` arrivals (no disorder to count), in Python ints;
+        None for any other push."""
+        t = stamps.tolist()
+        if not t or self._newest == _NONE or t[0] < self._newest or any(
+                b < a for a, b in itertools.pairwise(t)):
+            return None
+        held, hidx, n = self._held, self._held_idx, len(t)
+        last = self._arrived + n - 1
+        if held is not None and int(hidx.min()) <= last - self.cap:
+            return None
+        threshold = t[-1] - self.window_ns
+        fresh = sum(x <= threshold for x in t)  # new samples released (then every held one)
+        idx = np.arange(self._arrived, last + 1, dtype=np.int64)
+        self._arrived, self._newest = last + 1, t[-1]
+        cols = (stamps, accel, frames, cov)
+        if held is None:
+            return self._keep(cols, idx, None, fresh)
+        if fresh:
+            return self._keep(_concat([held, cols]), np.concatenate([hidx, idx]), None,
+                              hidx.size + fresh)
+        count = int(np.searchsorted(held[0], threshold, side='right'))
+        released = _take(held, slice(0, count))
+        self._held = _concat([_take(held, slice(count, None)), cols])
+        self._held_idx = np.concatenate([hidx[count:], idx])
+        return released
 
     def _note(self, behind: np.ndarray, late: np.ndarray) -> None:
         """Count the disorder ``behind`` (ns, newest before minus own stamp) by kind."""
@@ -159,9 +195,7 @@ def _concat(parts: list[Columns]) -> Columns:
             np.concatenate([p[2] for p in parts]), cov)
 
 
-def _join(parts: list[Columns], *given: np.ndarray | None) -> Columns:
+def _join(parts: list[Columns], given: Columns) -> Columns:
+    """``_concat`` of the released parts; an empty release keeps the input's types."""
     out = _concat(parts)
-    if out[0].size == 0:  # the types of the input, for an empty release
-        stamps, accel, frames, cov = given
-        return stamps[:0], accel[:0], frames[:0], None if cov is None else cov[:0]
-    return out
+    return out if out[0].size else _take(given, slice(0, 0))
