@@ -327,9 +327,11 @@ def test_injected_faults_are_counted_by_reason(tmp_path: Path, ros_context: Any,
     accel, stamps = run.accel.copy(), run.stamps_ns.copy()
     nan_at = [1500, 2500, 3500, 4500, 5500]
     accel[nan_at] = np.nan
-    swap_at = [2000, 4000, 6000]  # header stamps of k and k + 1 exchanged: k + 1 is late
+    swap_at = [2000, 4000, 6000]  # header stamps of k and k + 1 exchanged: re-ordered
     for k in swap_at:
         stamps[[k, k + 1]] = stamps[[k + 1, k]]
+    late_at = [5200, 8200]  # stamped 200.5 ms back: beyond reorder_window_s, rejected
+    stamps[late_at] -= 200_500_000
     bridged = {3000: 40, 7000: 120}  # dropouts of these lengths (<= max_bridge_s 1.2 s)
     reset_at = 9000  # a 1.5 s dropout: longer than max_bridge_s, so the filters restart
     keep = np.ones(stamps.size, bool)
@@ -343,7 +345,8 @@ def test_injected_faults_are_counted_by_reason(tmp_path: Path, ros_context: Any,
     bag = write_bag(tmp_path / 'bag', arrived, FAULTS_RATE, imu_stamps_ns=stamps[keep])
     live = run_complete(tmp_path, bag, int(keep.sum()), Probe(spin, ros_context, 0), FAULTS_RATE)
     expected = {'received': int(keep.sum()), 'rejected_nan': len(nan_at),
-                'rejected_out_of_order': len(swap_at), 'rejected': len(nan_at) + len(swap_at),
+                'reordered': len(swap_at), 'late': len(late_at),
+                'rejected_out_of_order': len(late_at), 'rejected': len(nan_at) + len(late_at),
                 'gap': len(bridged) + 1, 'bridged': sum(bridged.values()), 'reset': 1,
                 'rejected_duplicate': 0, 'rejected_saturated': 0, 'rejected_wrong_frame': 0,
                 'rejected_malformed': 0}
