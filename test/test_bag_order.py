@@ -86,8 +86,8 @@ def test_disorder_beyond_the_window_is_counted_reported_and_rejected(run: Any, t
     delay = receipt(run.stamps_ns.size, 2)
     late = np.array([2000, 4100, 7777])
     delay[late] = 80 * MS  # 80 ms behind: beyond the 50 ms window
-    got, err = invert(write_bag(tmp_path / 'late', run, 'mcap', delay), tmp_path / 'l.csv',
-                      capsys)
+    bag = write_bag(tmp_path / 'late', run, 'mcap', delay)
+    got, err = invert(bag, tmp_path / 'l.csv', capsys)
     stamps = np.loadtxt(got.splitlines()[1:], delimiter=',', usecols=0, ndmin=1)
     want = np.delete(run.stamps_ns, late) / 1e9
     # exactly the late samples are missing (the CSV's time has 0.2 us resolution at 1.7e9 s)
@@ -97,6 +97,12 @@ def test_disorder_beyond_the_window_is_counted_reported_and_rejected(run: Any, t
     assert warning.startswith('warning: 3 IMU samples arrived more than reorder_window_s '
                               '(50 ms) after a newer stamp'), warning
     assert 'rejected as out_of_order' in warning
+    from railgsa_ros.review.build import build_review
+    from railgsa_ros.review.results import ReviewOptions
+
+    review = build_review(ReviewOptions(bag))  # the review's report and stderr carry it too
+    assert warning.removeprefix('warning: ') in [f.message for f in review.run.findings]
+    assert review.run.counters['late'] == 3
 
 
 def _equal(a: Any, b: Any) -> None:

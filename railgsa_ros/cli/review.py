@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import sys
 from typing import Any
 
 # the default --min-probability: a maintenance list holds the exceedances more likely than not
@@ -183,6 +184,9 @@ def run(args: argparse.Namespace) -> int:
                               lambda stage, f: bar.update(round(1000 * f), f'{stage:<10}'))
     finally:
         bar.close()
+    for finding in review.run.findings:
+        if finding.level:
+            print(f'warning: {finding.message}', file=sys.stderr)
     if args.json:
         import json
 
