@@ -171,7 +171,14 @@ def test_out_of_order_and_duplicate_stamps_counted_exactly() -> None:
     bad[700] = bad[10]                  # one far in the past
     item = monotonic_item(bad)
     assert item.status == FAIL
-    assert item.value == f'101 out of order, 1 duplicates in {stamps.size}'
+    assert item.value.startswith(f'101 out of order, 1 duplicates in {stamps.size} (by up to')
+    local = stamps.copy()
+    local[[100, 101]] = local[[101, 100]]  # 1 ms behind: the nodes re-order it
+    item = monotonic_item(local)
+    assert item.status == WARN and 'reorder_window_s' in item.hint
+    assert item.value == f'1 out of order, 0 duplicates in {stamps.size} (by up to 1 ms)'
+    local[300] = local[300] - 60_000_000  # 60 ms behind: beyond the 50 ms window
+    assert monotonic_item(local).status == FAIL
 
 
 def test_no_data_fails_every_imu_item_without_raising() -> None:

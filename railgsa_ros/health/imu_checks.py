@@ -22,6 +22,7 @@ from scipy import signal
 
 from railgsa_ros.health.items import FAIL, PASS, WARN, Item
 from railgsa_ros.imu import UG, G, ImuSpec
+from railgsa_ros.inverse.policy import REORDER_WINDOW_S
 
 RATE_TOLERANCE = 0.02  #: relative deviation of the rate from the expected one
 LOST_WARN = 0.05  #: fraction of samples missing between first and last stamp
@@ -141,17 +142,27 @@ def jitter_item(stamps_ns: np.ndarray, expected_hz: float) -> Item:
 
 
 def monotonic_item(stamps_ns: np.ndarray) -> Item:
-    """Stamps in arrival order: any stamp below (out of order) or equal to (duplicate) the
-    newest before it FAILs: the nodes reject such samples."""
+    """Stamps in arrival order: a stamp equal to the newest before it (duplicate), or below it
+    by more than the nodes' default ``reorder_window_s``, FAILs (the nodes reject such samples);
+    out of order within that window WARNs (the nodes re-order it, at the window's latency)."""
     stamps = np.asarray(stamps_ns, np.int64)
     if stamps.size == 0:
         return Item('stamp order', FAIL, 'no stamps', '0 out of order, 0 duplicates')
     newest = np.maximum.accumulate(stamps)[:-1]
-    ooo, dup = int(np.sum(stamps[1:] < newest)), int(np.sum(stamps[1:] == newest))
+    behind = newest - stamps[1:]
+    ooo, dup = int(np.sum(behind > 0)), int(np.sum(behind == 0))
     value = f'{ooo} out of order, {dup} duplicates in {stamps.size}'
-    if ooo or dup:
+    if ooo:
+        value += f' (by up to {behind.max() / 1e6:.4g} ms)'
+    window_ms = REORDER_WINDOW_S * 1e3
+    if dup or (ooo and behind.max() > REORDER_WINDOW_S * 1e9):
         return Item('stamp order', FAIL, value, '0 out of order, 0 duplicates',
-                    'the driver publishes stamps that go backwards or repeat: check its clock')
+                    'the driver publishes stamps that go backwards (beyond reorder_window_s, '
+                    f'{window_ms:g} ms) or repeat: check its clock')
+    if ooo:
+        return Item('stamp order', WARN, value, '0 out of order, 0 duplicates', (
+            f'the nodes re-order stamps within reorder_window_s ({window_ms:g} ms, its '
+            'latency on every output); stamp in the driver at sampling time and publish in order'))
     return Item('stamp order', PASS, value, '0 out of order, 0 duplicates')
 
 
