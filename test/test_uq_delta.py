@@ -8,7 +8,14 @@ from scipy import special
 
 from railgsa_ros.uq import Normal, analyze
 from railgsa_ros.uq.conditional import conditional_design, distinct_count, paper_count
-from railgsa_ros.uq.delta import _smooth, delta_design, delta_from_outputs, delta_indices
+from railgsa_ros.uq.delta import (
+    FOLD,
+    _extent,
+    _smooth,
+    delta_design,
+    delta_from_outputs,
+    delta_indices,
+)
 
 ISHIGAMI_DELTA = np.array([0.263, 0.425, 0.210])  # gsa_notes section 2, semi-analytic
 
@@ -118,3 +125,14 @@ def test_delta_design_is_what_delta_indices_evaluates():
     y_cond = func(design.cond.reshape(-1, 3)).reshape(*design.cond.shape[:3], -1)
     np.testing.assert_array_equal(delta_from_outputs(func(design.ref), y_cond),
                                   delta_indices(func, 3, 4096, seed=5))
+
+
+@pytest.mark.parametrize('rows', [1, FOLD - 1, FOLD, FOLD + 1, 3 * FOLD + 5])
+def test_extent_is_the_columns_min_and_max(rows):
+    """The folded reduction against min/max over the leading axes: rows below, at and beyond
+    multiples of FOLD, a NaN propagated as np.min and np.max do."""
+    y = np.random.default_rng(rows).standard_normal((rows, 2, 3))
+    y[-1, 0, 1] = np.nan
+    lo, hi = _extent(y)
+    np.testing.assert_array_equal(lo, y.min(axis=(0, 1)))
+    np.testing.assert_array_equal(hi, y.max(axis=(0, 1)))

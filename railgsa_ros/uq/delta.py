@@ -28,6 +28,7 @@ BINS = 1024  # grid cells across the joint sample range
 BANDWIDTH_FACTOR = 0.25  # x Silverman's rule, for the sign of f - g only
 TAIL_BANDWIDTHS = 10.0  # zero padding of the smoothing, in kernel bandwidths
 CHUNK_ROWS = 128  # (conditional sample, output) rows per pass of l1_distances: 1.2 MB arrays
+FOLD = 64  # rows per row of the reduction of _extent
 HALVES = (slice(0, None, 2), slice(1, None, 2))  # the cross-fitting halves of a sample's rows
 
 
@@ -112,8 +113,8 @@ def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
     y_ref, y_cond = np.asarray(y_ref, dtype=float), np.asarray(y_cond, dtype=float)
     bins = bins or BINS
     bandwidth_factor = bandwidth_factor or BANDWIDTH_FACTOR
-    lo = np.minimum(y_ref.min(axis=0), y_cond.min(axis=(0, 1)))
-    hi = np.maximum(y_ref.max(axis=0), y_cond.max(axis=(0, 1)))
+    (ref_lo, ref_hi), (cond_lo, cond_hi) = _extent(y_ref), _extent(y_cond)
+    lo, hi = np.minimum(ref_lo, cond_lo), np.maximum(ref_hi, cond_hi)
     width = np.where(hi > lo, (hi - lo) / bins, 1.0)
     grid = (lo, width, bins)
     p = [_probabilities(_bin_index(y_ref[half], grid), bins) for half in HALVES]  # (m, bins)
@@ -122,6 +123,25 @@ def l1_distances(y_ref: np.ndarray, y_cond: np.ndarray, bins: int | None = None,
     for k in range(0, y_cond.shape[0], step):
         dist[k:k + step] = _cross_fitted(p, y_cond[k:k + step], grid, bandwidth_factor)
     return np.where(hi > lo, dist, 0.0)
+
+
+def _extent(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest value (m,) of each column of y (..., m), over every leading axis.
+
+    The rows are reduced FOLD at a time (FOLD m values per row of the reduction): numpy's
+    reduction over the rows of a (59904, 12) array runs an inner loop of 12 values per row,
+    1.7 ms for its minimum against 0.15 ms folded (one core), the same values.
+    """
+    rows = y.reshape(-1, y.shape[-1])
+    whole = rows.shape[0] // FOLD * FOLD
+    out = []
+    for reduce in (np.min, np.max):
+        parts = [rows[whole:]]
+        if whole:
+            parts.append(reduce(rows[:whole].reshape(-1, FOLD * rows.shape[1]), axis=0
+                                ).reshape(FOLD, -1))
+        out.append(reduce(np.concatenate(parts), axis=0))
+    return out[0], out[1]
 
 
 def _bin_index(y: np.ndarray, grid: tuple[np.ndarray, np.ndarray, int]) -> np.ndarray:
