@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
@@ -132,6 +132,24 @@ def pipelines() -> dict[str, tuple[InversionPipeline, Stream]]:
             for m in ('spectral', 'feedback', 'kalman')}
 
 
+#: every fault and start once per method, before the generated examples: the coverage check
+#: below then does not depend on what the generator happens to draw
+EVERY_FAULT = [(0.1, 'stuck', 0.0), (0.5, 'value', 3 * G), (0.6, 'duplicate', 0.0),
+               (0.7, 'backward', 0.5), (0.8, 'frame', 0.0)]
+COVERING = [(m, (n, seed, start, 1, faults), 40.0, 40.0)
+            for m in ('spectral', 'feedback', 'kalman')
+            for n, seed, start, faults in ((2500, 1, 'next', EVERY_FAULT), (600, 2, 'gap', []),
+                                           (600, 4, 'far_back', []))]
+
+
+def covering(test: Any) -> Any:
+    """``test`` with the COVERING examples."""
+    for args in COVERING:
+        test = example(*args)(test)
+    return test
+
+
+@covering
 @settings(FUZZ, max_examples=150)
 @given(st.sampled_from(['spectral', 'feedback', 'kalman']), chunks, SPEEDS, BANK_SPEEDS)
 def test_pipeline_emits_only_finite_values(pipelines: dict, method: str, spec: tuple,

@@ -87,7 +87,10 @@ def test_tilted_sensor_estimate_gives_the_upright_dips_and_reports_the_tilt(
     early = (t > 1) & (t < mounting.SETTLE_S - mounting.BLOCK_S + mounting.FIRST_S)
     assert np.all(out.quality[early] >= Quality.DEGRADED)
     late = (t > mounting.SETTLE_S) & (t < 60)
-    assert np.all(out.quality[late] == Quality.VALID)
+    # settled, the mounting adds no flag: the upright sensor's qualities (VALID, or DEGRADED
+    # where the braking changes the speed across a band window)
+    assert np.array_equal(out.quality[late], ref.quality[late])
+    assert np.mean(ref.quality[late] == Quality.VALID) > 0.5
     assert policy.counters['mounting_degraded'] > 0
 
 
