@@ -14,9 +14,11 @@ run.
 - CPU: utime + stime of each measured process (/proc/<pid>/stat) over the publishing window,
   in % of one core.
 - Latency (ms): relay: receive time of relay/imu stamped k minus publish time of sample k.
-  Node: its band filter has a fixed delay of D samples (read from its /diagnostics), so output
-  k is computed when sample k + D arrives: receive time of output k minus publish time of
-  sample k + D. uncertainty_node works in batches every ``process_period_s`` (50 ms), so its
+  Node: its band filter has a fixed delay of D samples (read from its /diagnostics) and its
+  stamp re-ordering holds each sample until one W = reorder_window_s x rate samples newer has
+  arrived (the default 50 ms: W = 50 at 1 kHz), both delays by design, so output k is computed
+  when sample k + D + W arrives: receive time of output k minus publish time of sample
+  k + D + W. uncertainty_node works in batches every ``process_period_s`` (50 ms), so its
   latency includes up to one period by design.
 - Lost: samples 0..N-1-D without their output (the last D wait for input that never comes).
   Every subject's reader and writer histories hold one second (``imu_qos_depth`` and
@@ -45,6 +47,7 @@ import time
 
 import numpy as np
 
+from railgsa_ros.inverse.policy import REORDER_WINDOW_S
 from railgsa_ros.system import reserve_domain
 
 SPEED_MPS = 20.0
@@ -275,8 +278,9 @@ def measure(node: str, rate: float, duration: float, domain: int,
     delay = int(diag.get(f'{SUBJECTS[node][2]}/band_delay_samples', -1))
     if delay < 0:
         raise SystemExit(f'{node} published no /diagnostics (exit code {codes[node]})')
+    hold = round(REORDER_WINDOW_S * rate)  # the nodes' default reorder_window_s, samples
     out = {}
-    for subject, d in (('relay', 0), (node, delay)):
+    for subject, d in (('relay', 0), (node, delay + hold)):
         lat, lost = _latencies(pub, rec[subject], d)
         out[subject] = _summary(lat, lost, cpu[subject], d, codes[subject])
     return out
@@ -327,7 +331,7 @@ def drive(args: argparse.Namespace) -> int:
                                                 args.process_period)
             for subject, r in pair.items():
                 print(f'{subject} at {rate:g} Hz: CPU {r["cpu"]:.1f} %, p50 {r["p50"]:.2f} ms, '
-                      f'p99 {r["p99"]:.2f} ms, lost {r["lost"]}, D {r["delay"]}, '
+                      f'p99 {r["p99"]:.2f} ms, lost {r["lost"]}, D + W {r["delay"]}, '
                       f'exit {r["exit"]}', flush=True)
     report(rows, (load0, os.getloadavg()[0]))
     return 0
