@@ -392,6 +392,41 @@ def test_samples_lost_between_close_stamps_are_counted_and_degrade_not_valid():
     assert np.sum(out.quality[600:] == Quality.VALID) > 1000
 
 
+@pytest.mark.parametrize('rate_hz, loss', [(1000.0, 'every 50th'), (1000.0, 'bursts of 5'),
+                                            (800.0, 'every 50th')])
+def test_jittered_stamps_with_lost_samples_are_counted_not_another_rate(rate_hz, loss):
+    """0.22 ms of host-stamp jitter (22 % of the period) with samples removed, rate_hz 1000:
+    every 50th lost is counted as lost (DEGRADED, the 'lost' WARN: not INVALID with "set
+    rate_hz", as the phase-locked loop did); bursts of 5 are gaps (6 periods), not losses;
+    800 Hz data is 800 Hz (ERROR "set rate_hz to 800"), not 1 kHz with lost samples."""
+    n, g = 2700, 9.80665  # 5 rate blocks
+    rng = np.random.default_rng(7)
+    k = np.arange(n)
+    keep = k % 50 != 25 if loss == 'every 50th' else k % 500 >= 5
+    stamps = 10**18 + np.rint(k / rate_hz * 1e9 + rng.normal(0, 0.22e6, n)).astype(np.int64)
+    accel = 0.02 * rng.standard_normal((n, 3)) + [0.0, 0.0, g]
+    policy = InputPolicy(InversionConfig(rate_hz=1000.0))
+    odom = np.arange(stamps[0], stamps[-1] + 10**9, 20 * 10**6)
+    policy.odometry(odom, np.full(odom.size, 20.0))
+    out = Output.concat([policy.imu(stamps[keep], accel[keep], None, None), policy.flush()])
+    counters, finding = policy.counters, {f.key: f for f in policy.findings}['rate']
+    measured = float(finding.message.split('measured IMU rate ')[1].split(' Hz')[0])
+    assert abs(measured / rate_hz - 1) < 0.005
+    if rate_hz != 1000.0:
+        assert finding.level == ERROR and f'set rate_hz to {measured:.6g}' in finding.message
+        assert counters['rate_invalid'] == keep.sum() - 513  # all after the first block
+        assert np.all(out.quality == Quality.INVALID)
+        return
+    assert counters.get('rate_invalid', 0) == 0
+    blocks_end = np.sort(stamps[keep])[5 * 512]  # the last sample the rate blocks saw
+    truth = int(np.count_nonzero(~keep & (stamps <= blocks_end)))
+    if loss == 'every 50th':
+        assert abs(counters['lost'] - truth) <= 2 * 5 and finding.level == WARN
+        assert 'lost' in finding.message
+    else:
+        assert counters.get('lost', 0) == 0 and counters['gap'] == 5 and finding.level == OK
+
+
 def _valid_error(run, policy: InputPolicy) -> tuple[np.ndarray, Output]:
     """Error (m) of the VALID outputs against the truth band-passed on distance at their true
     chainage (100 m left out at each end), and the output."""

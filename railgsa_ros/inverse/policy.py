@@ -637,8 +637,8 @@ class InputPolicy:
         'jitter' findings; returns the quality code of the samples after it: INVALID at another
         rate, DEGRADED after samples lost without a gap (the record closes up around them: its
         time axis is compressed), counted as ``lost``, and under stamp jitter beyond
-        JITTER_TOLERANCE periods (stamps reorder: re-ordered, their times wrong, and lost ones
-        cannot be counted), counted as ``jitter`` (:mod:`railgsa_ros.inverse.rate`)."""
+        JITTER_TOLERANCE periods (stamps reorder: re-ordered, their times wrong; lost ones
+        counted while a period locks), counted as ``jitter`` (:mod:`railgsa_ros.inverse.rate`)."""
         cfg = self.config
         counted = count_steps(steps, 1e9 / cfg.rate_hz, cfg.gap_factor)
         measured = counted.rate_hz  # counted per stamp: robust to jitter and lost samples
@@ -667,8 +667,8 @@ class InputPolicy:
             self._counts['jitter'] += RATE_BLOCK
             self._findings['jitter'] = Finding('jitter', WARN, (
                 f'{level} exceeds {JITTER_TOLERANCE:.0%}: stamps reorder (re-ordered within '
-                'reorder_window_s, their times stay wrong) and lost samples cannot be told from '
-                'jitter; outputs DEGRADED '
+                'reorder_window_s, their times stay wrong), and from about 35 % no lost sample '
+                'can be told from jitter; outputs DEGRADED '
                 'until a block has less: stamp the samples with the sensor clock, not on '
                 'arrival'))
         elif 'jitter' in self._findings:  # reported once it was too much
