@@ -53,22 +53,29 @@ def lines(stdout: str) -> dict[str, str]:
 
 
 @pytest.fixture
-def first_band(ros_context: Any, spin: Callable, wait_for: Callable) -> Callable[[], bool]:
+def probe(ros_context: Any, spin: Callable) -> Any:
+    """A node of the test process, spun, to look at the graph."""
+    from rclpy.node import Node
+
+    return spin(Node('check_test', context=ros_context))
+
+
+@pytest.fixture
+def first_band(probe: Any, wait_for: Callable) -> Callable[[], bool]:
     """``first_band()``: waits until track/irregularity_band publishes (True) or 60 s pass."""
     from geometry_msgs.msg import Vector3Stamped
-    from rclpy.node import Node
 
     from railgsa_ros.nodes.qos import sensor_qos
 
     got: list[int] = []
-    node = spin(Node('check_test', context=ros_context))
-    node.create_subscription(Vector3Stamped, 'track/irregularity_band',
+    probe.create_subscription(Vector3Stamped, 'track/irregularity_band',
                              lambda _m: got.append(1), sensor_qos(10))
     return lambda: wait_for(lambda: bool(got), 60.0)
 
 
 @pytest.mark.slow
-def test_check_on_a_live_system(start_node: Callable, first_band: Callable) -> None:
+def test_check_on_a_live_system(start_node: Callable, first_band: Callable, probe: Any,
+                                wait_for: Callable) -> None:
     sim = start_node('railgsa_ros.nodes.imu_sim_node',
                      ['-p', 'duration_s:=120.0', '-p', f'speed_mps:={SPEED}', '-p', 'seed:=4'])
     nodes = [start_node('railgsa_ros.nodes.irregularity_node', NODE_ARGS),
@@ -96,6 +103,11 @@ def test_check_on_a_live_system(start_node: Callable, first_band: Callable) -> N
 
     for node in nodes:
         assert node.stop(signal.SIGINT).rc == 0
+    # their departure reached the graph (a lost goodbye on a loaded machine leaves a node
+    # listed until its DDS lease ends)
+    names = {'irregularity_node', 'uncertainty_node'}
+    assert wait_for(lambda: not names & {n for n, _ in probe.get_node_names_and_namespaces()},
+                    40.0), probe.get_node_names_and_namespaces()
     gone = check('--duration', '3')
     assert gone.returncode == 1, gone.stdout + gone.stderr
     status = lines(gone.stdout)
