@@ -16,8 +16,9 @@ gathers one stream into a single ``Run``. The profile is a function of chainage 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from dataclasses import dataclass, fields, replace
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, fields, replace
+from functools import partial
 import math
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,8 @@ class Run:
     stamps_ns: int64 sensor stamps (clock drift and jitter included); accel: (T, 3) specific
     force in ``frame_id`` (m/s^2, +g on z); t_true_s: true sample times (s); speed_mps and
     chainage_m (m) at the true time; truth_u_m: irregularity under the wheel at the true time (m).
+    track: u(x) (m) of the simulated track (defects included) at any chainage array x (m), also
+    under the dropped samples (None in runs built by hand).
     """
 
     stamps_ns: np.ndarray
@@ -63,6 +66,8 @@ class Run:
     seed: int | None
     frame_id: str = FRAME_ID
     odom_scale: float = 1.0  # odometry speed = (1 + wheel-diameter error) * true speed
+    track: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False,
+                                                              repr=False)
 
     @classmethod
     def concat(cls, chunks: list[Run]) -> Run:
@@ -169,7 +174,7 @@ class RunStream:
             rate_hz=rate, sim_rate_hz=self.fs_sim, accel_covariance=accel_covariance(spec),
             n_dropped=0, sensor=spec, vehicle=self.theta, profile=profile_spec,
             defects=defects if isinstance(defects, str) else None, seed=seed,
-            odom_scale=float(odom_scale))
+            odom_scale=float(odom_scale), track=partial(_track, self.line, self.defects))
         self.start_ns = np.int64(start_ns)
 
     def __iter__(self) -> Iterator[Run]:
@@ -191,7 +196,7 @@ class RunStream:
             travel = travel if v_last is None else travel[1:]
             v_last = v[-1]
             chainage = self.start_m + travel
-            u = apply_defects(chainage, self.line(chainage), self.defects)
+            u = _track(self.line, self.defects, chainage)
             if lo == 0:  # the vehicle starts at rest on the track where it stands: no step
                 self.bank.settle(float(u[0]))
             imu = self.mems.process(self.bank.process(u)[0, 0], final=hi == n_sim)
@@ -205,6 +210,12 @@ class RunStream:
                           accel=imu.accel[keep], t_true_s=imu.t_true_s[keep],
                           speed_mps=speed[keep], chainage_m=chain[keep],
                           truth_u_m=truth[keep], n_dropped=int(np.sum(~keep)))
+
+
+def _track(line: Callable[[np.ndarray], np.ndarray], defects: list, x: np.ndarray
+           ) -> np.ndarray:
+    """u(x) (m) of a line with its defects at chainages x (m)."""
+    return apply_defects(x, line(x), defects)
 
 
 def run_scenario(profile_spec: str, speed_mps: Speed, duration_s: float,
