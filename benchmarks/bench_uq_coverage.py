@@ -12,10 +12,13 @@ the stated law and the preset's datasheet noise. Printed: the fraction of D1 poi
   truncated at 0);
 - the paper's Table 3 (sigma = mu / 3) as the band's law against truths from the realistic law,
   and against truths from Table 3 itself;
-- the fixed mismatch of the issue (k_s +15 %, k_us -10 %, c -15 %) under the CoV 0.1 law.
+- the fixed mismatch of the issue (k_s +15 %, k_us -10 %, c -15 %) under the CoV 0.1 law;
+- with ``--dropouts``: the total band with two dropouts of 0.2, 0.5 and 1 s cut into every
+  BMI088 run (at a third and two thirds of it, beside the preset's own), scored within 5 m and
+  50 m of a dropout's edges and away from every dropout (the gap term's check).
 
 Usage: python benchmarks/bench_uq_coverage.py [--runs 24] [--duration 30] [--speed 30]
-    [--cases 7]
+    [--cases 7] [--dropouts]
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from railgsa_ros.imu import imu_spec
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty.config import UncertaintyConfig
-from railgsa_ros.uncertainty.coverage import coverage, draw_sensor, draw_vehicle
+from railgsa_ros.uncertainty.coverage import coverage, draw_sensor, draw_vehicle, with_dropouts
 from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.uq.distributions import Normal
 from railgsa_ros.vehicle import VehicleParams
@@ -46,17 +49,19 @@ def realistic(cov: float = 0.1) -> dict[str, Normal]:
 
 
 def ensemble(args, preset: str, truth_law, band_law, sensor_terms: bool = True,
-             fixed: np.ndarray | None = None
+             fixed: np.ndarray | None = None, dropout_s: float = 0.0, near_m: float = 50.0
              ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float]:
-    """Mean coverage per level (3,), mean 95 % half-width (m), coverage per level within 50 m
+    """Mean coverage per level (3,), mean 95 % half-width (m), coverage per level within near_m
     of a dropout and away from them (pooled over the runs' samples) and the fraction of samples
-    near a dropout."""
+    near a dropout; dropout_s > 0: two dropouts that long cut into every run."""
     rng = np.random.default_rng(args.seed)
     inside, width, near, away, counts = [], [], [], [], []
     for r in range(args.runs):
         theta = fixed if fixed is not None else draw_vehicle(NOMINAL, truth_law, rng)
         run = run_scenario('german-low', args.speed, args.duration, None,
                            draw_sensor(preset, rng), seed=1000 + r, vehicle=theta)
+        if dropout_s > 0:
+            run = with_dropouts(run, (args.duration / 3, 2 * args.duration / 3), dropout_s)
         # the clock term from the preset's stated clock stability (the drawn sensor keeps the
         # preset's drift: a one-sigma draw in every run)
         config = UncertaintyConfig(inversion=InversionConfig(rate_hz=run.rate_hz),
@@ -64,7 +69,7 @@ def ensemble(args, preset: str, truth_law, band_law, sensor_terms: bool = True,
         if not sensor_terms:
             config = config.with_(sensor_noise=False, delay_std_s=0.0, scale_std=0.0,
                                   clock_std_ppm=0.0)
-        cov = coverage(run, config, NOMINAL, band_law, preset)
+        cov = coverage(run, config, NOMINAL, band_law, preset, near_m=near_m)
         inside.append(cov.inside)
         width.append(cov.half_width_m[1])
         near.append(np.nan_to_num(cov.near) * cov.near_samples)
@@ -113,6 +118,27 @@ def coverage_table(runs: int = 24, duration: float = 30.0, speed: float = 30.0,
               f'{time.perf_counter() - start:.0f} |')
 
 
+def dropout_table(runs: int = 24, duration: float = 30.0, speed: float = 30.0,
+                  seed: int = 5) -> None:
+    """Print the coverage of the total band (CoV 0.1, BMI088) with dropouts of 0.2, 0.5 and
+    1 s cut into every run: within 5 m and 50 m of a dropout's edges and away (module
+    docstring). The 95 % column's +- as in ``coverage_table``."""
+    args = argparse.Namespace(runs=runs, duration=duration, speed=speed, seed=seed)
+    law = realistic()
+    print(f'\n(h2) coverage with dropouts cut in: {runs} runs of {duration:g} s at {speed:g} m/s, '
+          'BMI088, CoV 0.1, two dropouts per run; target for the 95 % band: 92-98 %')
+    header('dropout s', 'near = within m', '95 % near', '95 % away', 'near: 50 / 95 / 99 %',
+           'points near', 's')
+    for length in (0.2, 0.5, 1.0):
+        for near_m in (5.0, 50.0):
+            start = time.perf_counter()
+            _, _, near, away, share = ensemble(args, 'bmi088', law, law, dropout_s=length,
+                                               near_m=near_m)
+            print(f'| {length:g} | {near_m:g} | {near[1]:.3f} +- {np.sqrt(0.95 * 0.05 / runs):.3f}'
+                  f' | {away[1]:.3f} | ' + ' / '.join(f'{x:.3f}' for x in near)
+                  + f' | {100 * share:.1f} % | {time.perf_counter() - start:.0f} |')
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--runs', type=int, default=24)
@@ -120,8 +146,13 @@ def main() -> None:
     parser.add_argument('--speed', type=float, default=30.0, help='m/s')
     parser.add_argument('--seed', type=int, default=5)
     parser.add_argument('--cases', type=int, default=7, help='first N rows of the table')
+    parser.add_argument('--dropouts', action='store_true',
+                        help='the table with 0.2 / 0.5 / 1 s dropouts cut in instead')
     args = parser.parse_args()
-    coverage_table(args.runs, args.duration, args.speed, args.seed, args.cases)
+    if args.dropouts:
+        dropout_table(args.runs, args.duration, args.speed, args.seed)
+    else:
+        coverage_table(args.runs, args.duration, args.speed, args.seed, args.cases)
 
 
 if __name__ == '__main__':
