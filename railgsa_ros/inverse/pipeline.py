@@ -579,6 +579,14 @@ class InversionPipeline:
         v = np.clip(np.abs(speed_mps), cfg.min_design_speed_mps, cfg.max_speed_mps)
         return fixed + r * np.ceil(low * cfg.min_design_speed_mps / v).astype(np.int64)
 
+    def _half_width_at(self, speed_mps: float) -> int:
+        """``window_half_width`` of one output at |speed| ``speed_mps`` (the live push's
+        Python-float paths)."""
+        fixed, low, r = self._window
+        vmin = self.config.min_design_speed_mps
+        return fixed + r * math.ceil(low * vmin / min(max(speed_mps, vmin),
+                                                      self.config.max_speed_mps))
+
     def _window_quality(self, first: int, quality: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Input quality of the samples at segment indices first.. raised by their band window
         [n - w, n + w] (w = ``window_half_width``): INVALID where it reaches into the fade-in
@@ -593,13 +601,11 @@ class InversionPipeline:
             self._bridged = self._bridged[-1:]  # the usual case: nothing else to raise
             return self._speed_quality(first, quality, speed)
         if quality.size <= SMALL and not self._bridged.size:  # per sample, in Python
-            fixed, low, r = self._window
-            vmin, vmax = self.config.min_design_speed_mps, self.config.max_speed_mps
             codes = []
             for k, q, v in zip(range(first, last), quality.tolist(), np.abs(speed).tolist(),
                                strict=True):
-                w = fixed + r * math.ceil(low * vmin / min(max(v, vmin), vmax))
-                codes.append(max(q, _INVALID if k < w + ramp or k + w > self._last_real
+                half = self._half_width_at(v)
+                codes.append(max(q, _INVALID if k < half + ramp or k + half > self._last_real
                                  else q))
             return self._speed_quality(first, np.array(codes, np.uint8), speed)
         n = np.arange(first, last)
@@ -630,7 +636,6 @@ class InversionPipeline:
         cfg = self.config
         vmin, vmax = cfg.min_design_speed_mps, cfg.max_speed_mps
         tol = cfg.window_speed_tolerance - cfg.speed_tolerance
-        fixed, low, r = self._window
         half = self.switch_period // 2
         col, lo, hi = self._meta.speeds
         base = lo - self._meta_start  # column index of segment index 0 (may be < 0)
@@ -640,7 +645,7 @@ class InversionPipeline:
             for i, v in enumerate(np.abs(speed).tolist()):
                 j = base + first + i
                 vc = min(max(v, vmin), vmax)
-                w = fixed + r * math.ceil(low * vmin / vc)
+                w = self._half_width_at(v)
                 dw, dp = (max(abs(min(max(abs(float(col[max(j - h, floor)])), vmin), vmax) - vc),
                               abs(min(max(abs(float(col[min(j + h, top)])), vmin), vmax) - vc))
                           for h in (w, half))
