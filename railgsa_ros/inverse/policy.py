@@ -34,7 +34,7 @@ policy"):
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -133,6 +133,50 @@ class Finding:
     message: str
 
 
+def _axis_of(config: InversionConfig) -> tuple[int, float]:
+    """Column (0..2) and sign (+-1.0) of the configured vertical axis."""
+    axis = config.accel_axis
+    return AXES.index(axis[-1]), -1.0 if axis.startswith('-') else 1.0
+
+
+def _gravity_verdict(cfg: InversionConfig, last: list[float], bad: bool) -> Finding:
+    """The 'gravity' finding from the newest running mean ``last`` (3 m/s^2) and whether it
+    failed the check."""
+    col, sign = _axis_of(cfg)
+    if not bad:
+        return Finding('gravity', OK,
+                       f'gravity on {cfg.accel_axis} ({sign * last[col]:.2f} m/s^2)')
+    k = _largest(last)
+    axis = ('-' if last[k] < 0 else '') + AXES[k]
+    if abs(abs(last[k]) - cfg.gravity_mps2) <= GRAVITY_TOLERANCE * cfg.gravity_mps2:
+        message = (f'gravity is on {axis} ({last[k]:+.2f} m/s^2 on {AXES[k]}), not on '
+                   f'{cfg.accel_axis}: set accel_axis to {axis!r}; outputs are INVALID until then')
+    else:
+        message = (f'no axis reads gravity {cfg.gravity_mps2:g} m/s^2 (largest: '
+                   f'{last[k]:+.2f} on {AXES[k]}): check the units and mounting, or set '
+                   'gravity_mps2 to 0 if the driver removes gravity; outputs are INVALID')
+    return Finding('gravity', ERROR, message)
+
+
+def _speed_verdict(options: PolicyOptions, speed_mps: float, lost: bool, reverse: int,
+                   total_reverse: int) -> Finding:
+    """The 'speed' finding of a release (``speed_mps``: the fixed speed without odometry;
+    ``lost``: its newest sample has no speed; ``reverse``: its samples at negative speed,
+    ``total_reverse`` so far)."""
+    if not options.use_odom:
+        return Finding('speed', OK, f'fixed speed_mps {speed_mps:g} m/s (use_odom false)')
+    if lost:
+        return Finding('speed', WARN, (
+            f'no odometry within odom_timeout_s ({options.odom_timeout_s:g} s) of the IMU '
+            'stamps: outputs are INVALID until a speed is known; check the odom topic (offline: '
+            '--speed)'))
+    if reverse:
+        return Finding('speed', WARN, (
+            f'reverse running: {total_reverse} samples at negative speed (the chainage '
+            'decreases); if the train ran forward, the odometry sign is reversed'))
+    return Finding('speed', OK, 'speed from odometry')
+
+
 class _Held:
     """IMU samples waiting for their speed decision, in arrival order."""
 
@@ -206,7 +250,8 @@ class InputPolicy:
         self.v_invalid = self.v_degraded = np.nan  #: speed limits of the noise floor, m/s
         self._counts: Counter[str] = Counter()
         self._retired: Counter[str] = Counter()
-        self._findings: dict[str, Finding] = {}
+        self._findings: dict[str, Finding | None] = {}  # None: made from _lazy when read
+        self._lazy: dict[str, Callable[[], Finding]] = {}
         self._held = _Held()
         self._reported: list[float] = []  # variances of the first NOISE_SAMPLES samples
         self._received = 0  # IMU samples given so far
@@ -264,12 +309,15 @@ class InputPolicy:
     @property
     def findings(self) -> list[Finding]:
         """The current verdict of each check made so far."""
-        return list(self._findings.values())
+        for key, make in self._lazy.items():
+            self._findings[key] = make()
+        self._lazy.clear()
+        return [f for f in self._findings.values() if f is not None]
 
     @property
     def status(self) -> Finding:
         """The worst finding (ERROR > WARN > OK), or OK 'ok' before any."""
-        worst = max(self._findings.values(), key=lambda f: f.level, default=None)
+        worst = max(self.findings, key=lambda f: f.level, default=None)
         if worst is None or worst.level == OK:
             return Finding('status', OK, 'ok')
         return worst
@@ -529,7 +577,7 @@ class InputPolicy:
                                <= GRAVITY_TOLERANCE * cfg.gravity_mps2)
         flags[finite] = np.where(good, _VALID, _INVALID)
         self._counts['gravity_invalid'] += int((~good).sum())
-        self._gravity_finding(mean[:, -1].tolist(), not good[-1])
+        self._gravity_finding(mean[:, -1].tolist(), bool(not good[-1]))
         return flags
 
     def _gravity_flags_small(self, data: list[list[float]], finite: list[bool]) -> np.ndarray:
@@ -557,32 +605,16 @@ class InputPolicy:
         self._gravity_finding(y, not good)
         return np.array(flags, np.uint8)
 
-    def _gravity_finding(self, last: list[float], bad: bool) -> None:
-        """The 'gravity' finding from the newest running mean ``last`` (3 m/s^2) and whether
-        it failed the check."""
-        cfg = self.config
-        col, sign = self._axis
-        if not bad:
-            self._findings['gravity'] = Finding('gravity', OK, (
-                f'gravity on {cfg.accel_axis} ({sign * last[col]:.2f} m/s^2)'))
-            return
-        k = _largest(last)
-        axis = ('-' if last[k] < 0 else '') + AXES[k]
-        if abs(abs(last[k]) - cfg.gravity_mps2) <= GRAVITY_TOLERANCE * cfg.gravity_mps2:
-            message = (f'gravity is on {axis} ({last[k]:+.2f} m/s^2 on {AXES[k]}), not on '
-                       f'{cfg.accel_axis}: set accel_axis to {axis!r}; outputs are INVALID '
-                       'until then')
-        else:
-            message = (f'no axis reads gravity {cfg.gravity_mps2:g} m/s^2 (largest: '
-                       f'{last[k]:+.2f} on {AXES[k]}): check the units and mounting, or set '
-                       'gravity_mps2 to 0 if the driver removes gravity; outputs are INVALID')
-        self._findings['gravity'] = Finding('gravity', ERROR, message)
+    def _later(self, key: str, make: Callable[[], Finding]) -> None:
+        """Finding ``key`` is ``make()``, made when the findings are read: the checks of every
+        live push would otherwise format a message per sample."""
+        self._lazy[key] = make
+        self._findings.setdefault(key, None)  # its place in the order
 
     @property
     def _axis(self) -> tuple[int, float]:
         """Column (0..2) and sign (+-1.0) of the configured vertical axis."""
-        axis = self.config.accel_axis
-        return AXES.index(axis[-1]), -1.0 if axis.startswith('-') else 1.0
+        return _axis_of(self.config)
 
     def _rate_flags(self, stamps: np.ndarray, finite: np.ndarray) -> np.ndarray:
         """INVALID from the sample after a block of RATE_BLOCK stamp steps whose median step
@@ -789,20 +821,15 @@ class InputPolicy:
         finding (``last_known``: the newest one has a speed)."""
         self._counts['speed_unknown'] += unknown
         self._counts['reverse'] += reverse
-        timeout = self.options.odom_timeout_s
-        if not self.options.use_odom:
-            self._findings['speed'] = Finding('speed', OK, (
-                f'fixed speed_mps {self.config.speed_mps:g} m/s (use_odom false)'))
-        elif unknown and not last_known:
-            self._findings['speed'] = Finding('speed', WARN, (
-                f'no odometry within odom_timeout_s ({timeout:g} s) of the IMU stamps: outputs '
-                'are INVALID until a speed is known; check the odom topic (offline: --speed)'))
-        elif reverse:
-            self._findings['speed'] = Finding('speed', WARN, (
-                f'reverse running: {self._counts["reverse"]} samples at negative speed (the '
-                'chainage decreases); if the train ran forward, the odometry sign is reversed'))
-        else:
-            self._findings['speed'] = Finding('speed', OK, 'speed from odometry')
+        total, options, v_fixed = self._counts['reverse'], self.options, self.config.speed_mps
+        self._later('speed', lambda: _speed_verdict(options, v_fixed, unknown and not last_known,
+                                                    reverse, total))
+
+    def _gravity_finding(self, last: list[float], bad: bool) -> None:
+        """The 'gravity' finding from the newest running mean ``last`` (3 m/s^2) and whether
+        it failed the check."""
+        cfg = self.config
+        self._later('gravity', lambda: _gravity_verdict(cfg, last, bad))
 
     def _rest_check(self, accel: np.ndarray, speed: np.ndarray, known: np.ndarray) -> None:
         """Standing still, the accelerometer reads gravity alone: the magnitude of the mean
@@ -854,12 +881,13 @@ class InputPolicy:
         where INVALID."""
         if not len(out) or out.quality is None:
             return out
-        self._counts.update(quality_counts(out.quality))
+        counts = quality_counts(out.quality)
+        self._counts.update(counts)
         if self.pipeline is not None:
             self._acceleration_finding(self.pipeline.speed_changed)
-        invalid = np.asarray(out.quality == _INVALID)
-        if not invalid.any():
+        if not counts['invalid']:
             return out
+        invalid = np.asarray(out.quality == _INVALID)
         u = np.array(out.u_m, dtype=float)
         u[..., invalid] = np.nan
         return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps,

@@ -19,6 +19,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from railgsa_ros.inverse.sanitize import SMALL
+
 
 class Quality(IntEnum):
     """Quality code of one output sample (published as PointStamped point.y)."""
@@ -33,5 +35,8 @@ _NAMES = tuple(q.name.lower() for q in Quality)  # in code order (Enum lookups a
 
 def quality_counts(quality: np.ndarray) -> dict[str, int]:
     """{'valid': n0, 'degraded': n1, 'invalid': n2} of a quality array."""
+    if quality.size <= SMALL:  # a live push: list counts instead of a bincount
+        codes = quality.tolist()
+        return dict(zip(_NAMES, (codes.count(0), codes.count(1), codes.count(2)), strict=True))
     counts = np.bincount(np.asarray(quality, dtype=np.int64), minlength=3)
     return dict(zip(_NAMES, counts[:3].tolist(), strict=True))

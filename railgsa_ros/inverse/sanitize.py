@@ -179,7 +179,10 @@ class InputSanitizer:
         self._last = (int(stamps[-1]), float(accel[-1]), float(speed[-1]))
         if np.isfinite(self.stuck_ns):  # the last sample started the current run
             self._run = (float(accel[-1]), int(stamps[-1]))
-        self.counters.update({**dict.fromkeys(REASONS, 0), 'accepted': n, 'gap': 0})
+        if 'accepted' in self.counters:  # every key is there: count the accepted alone
+            self.counters['accepted'] += n
+        else:
+            self.counters.update({**dict.fromkeys(REASONS, 0), 'accepted': n, 'gap': 0})
         return Clean(stamps, accel, speed, np.zeros(n, bool), np.zeros(n, bool))
 
     def _stuck(self, stamps: np.ndarray, accel: np.ndarray, ok: np.ndarray) -> np.ndarray:
