@@ -21,6 +21,42 @@ from scipy import fft
 
 DEFAULT_SIZES = (32, 256, 2048)
 _HEAD_ROWS = 4096  # rows of the direct-form window product evaluated at once (memory bound)
+_MIN_ROOM = 64  # samples of spare room in a new History buffer at least
+
+
+class History:
+    """The newest ``keep`` samples (last axis) of a stream followed by each chunk appended,
+    as one contiguous view. A chunk is copied into spare room behind the kept samples, which
+    move to a new buffer only when the room is used up: joining them with every chunk copied
+    the whole history per call (a live push of one sample copied 4096 of them).
+
+    ``initial``: (C, k) samples kept at the start; ``extend(x (C, T))`` returns the view (C,
+    k + T) of the k <= ``keep`` kept samples and x, valid until the next call."""
+
+    def __init__(self, keep: int, initial: np.ndarray) -> None:
+        self.keep = keep
+        self._buf = initial
+        self._span = (0, initial.shape[1])  # columns of the kept samples in _buf
+
+    @property
+    def kept(self) -> int:
+        """Samples kept (before the next chunk)."""
+        return self._span[1] - self._span[0]
+
+    def extend(self, x: np.ndarray) -> np.ndarray:
+        """Append a chunk (C, T); the kept samples and the chunk (C, k + T)."""
+        lo, hi = self._span
+        t = x.shape[-1]
+        buf = self._buf
+        if hi + t > buf.shape[1]:  # no room: a new buffer with room for keep more samples
+            size = hi - lo + t
+            fresh = np.empty((buf.shape[0], size + max(self.keep, _MIN_ROOM)), buf.dtype)
+            fresh[:, :hi - lo] = buf[:, lo:hi]
+            buf, lo, hi = fresh, 0, hi - lo
+            self._buf = buf
+        buf[:, hi:hi + t] = x
+        self._span = (max(lo, hi + t - self.keep), hi + t)
+        return buf[:, lo:hi + t]
 
 
 class _Level:
@@ -117,7 +153,7 @@ class PartitionedFir:
     def reset(self) -> None:
         """Zero state and restart absolute sample indices at 0."""
         self.n_total = 0
-        self._hist = np.zeros((self.channels, 0))
+        self._hist = History(self._keep, np.zeros((self.channels, 0)))
         for level in self._levels:
             level.reset(self.channels)
 
@@ -128,13 +164,12 @@ class PartitionedFir:
         if t_len == 0:
             return np.zeros((self.channels, 0))
         n0 = self.n_total
-        hist = np.concatenate([self._hist, x], axis=1)
-        hist_start = n0 - self._hist.shape[1]
+        hist_start = n0 - self._hist.kept
+        hist = self._hist.extend(x)
         out = self._head(hist, hist_start, n0, t_len)
         for level in self._levels:
             out += level.process(hist, hist_start, n0, t_len)
         self.n_total = n0 + t_len
-        self._hist = hist[:, -self._keep:] if hist.shape[1] > self._keep else hist
         return out
 
     def _head(self, hist: np.ndarray, hist_start: int, n0: int, t_len: int) -> np.ndarray:

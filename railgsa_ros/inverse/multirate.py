@@ -34,7 +34,7 @@ import numpy as np
 from numpy.lib.stride_tricks import as_strided
 from scipy import signal
 
-from railgsa_ros.inverse.convolve import DEFAULT_SIZES, PartitionedFir
+from railgsa_ros.inverse.convolve import DEFAULT_SIZES, History, PartitionedFir
 
 PASS_FACTOR = 1.5  # anti-alias passband edge / the band's upper edge at max_speed_mps
 TRANSITION = 1.0  # anti-alias transition width / passband edge: fs / R >= (2 + this) f_pass
@@ -111,7 +111,7 @@ class MultirateFir:
     def reset(self) -> None:
         """Zero state and restart absolute sample indices at 0."""
         self.n_total = 0
-        self._x: np.ndarray | None = None  # last len(A) - 1 inputs (zeros before the start)
+        self._x: History | None = None  # last len(A) - 1 inputs (zeros before the start)
         self._w: np.ndarray = np.zeros((self.low.channels, self._phases.shape[1]),
                                        self.dtype)  # last k w
 
@@ -123,8 +123,9 @@ class MultirateFir:
             return np.zeros((self.low.channels, 0))
         n0 = self.n_total
         if self._x is None:
-            self._x = np.zeros((x.shape[0], self._dec.size - 1), self.dtype)
-        hist = np.concatenate([self._x, x], axis=1)  # hist[:, i] is x[n0 - len(A) + 1 + i]
+            keep = self._dec.size - 1
+            self._x = History(keep, np.zeros((x.shape[0], keep), self.dtype))
+        hist = self._x.extend(x)  # hist[:, i] is x[n0 - len(A) + 1 + i]
         m0, m1 = -(-n0 // r), (n0 + t_len - 1) // r + 1  # low samples taken in this chunk
         w = self._w
         if m1 > m0:
@@ -142,7 +143,6 @@ class MultirateFir:
             z = self._interpolate(src, src.shape[1] - k + 1).reshape(w.shape[0], -1)
             z = z[:, p:p + t_len]
         self.n_total = n0 + t_len
-        self._x = hist[:, hist.shape[1] - self._x.shape[1]:]
         self._w = w[:, w.shape[1] - k:]
         return z.astype(float)
 

@@ -28,6 +28,7 @@ from railgsa_ros.inverse.sanitize import SMALL
 #: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 _NONE = np.iinfo(np.int64).min
+STORE_ROOM = 4  #: a new backing store holds this many times the samples it starts with
 
 
 class Reorder:
@@ -46,6 +47,10 @@ class Reorder:
         self._arrived = 0  # samples pushed so far
         self._held: Columns | None = None
         self._held_idx = np.zeros(0, np.int64)  # their arrival indices
+        # backing arrays (stamps, accel, frames, covariance, arrival) whose rows lo:hi are the
+        # held samples (views), None while the held ones are not views of it
+        self._store: tuple[np.ndarray, ...] | None = None
+        self._span = (0, 0)
 
     def configure(self, window_s: float, backward_reset_s: float, cap: int) -> None:
         """New window (s), backward jump (s) and cap (samples); held samples are kept."""
@@ -86,6 +91,7 @@ class Reorder:
         """Release every held sample (end of input or of a stream); the next starts afresh."""
         held = self._held
         self._held, self._held_idx, self._newest = None, np.zeros(0, np.int64), _NONE
+        self._store = None
         if held is None:
             return _empty()
         return held
@@ -115,9 +121,39 @@ class Reorder:
                               hidx.size + fresh)
         count = int(np.searchsorted(held[0], threshold, side='right'))
         released = _take(held, slice(0, count))
-        self._held = _concat([_take(held, slice(count, None)), cols])
-        self._held_idx = np.concatenate([hidx[count:], idx])
+        self._append(count, cols, idx)
         return released
+
+    def _append(self, count: int, cols: Columns, idx: np.ndarray) -> None:
+        """Hold ``held[count:]`` then ``cols`` (arrival indices ``idx``): the new rows written
+        into the backing store's spare room where they fit (a live push: no copy of the held
+        window, which the join of arrays made on every push), else into a new store with room
+        for STORE_ROOM windows of such pushes."""
+        held = self._held
+        assert held is not None
+        n = idx.size
+        lo, hi = self._span
+        store = self._store
+        if store is None or (held[3] is None) != (cols[3] is None) or hi + n > store[0].size:
+            kept = _take(held, slice(count, None))
+            size = kept[0].size + n
+            store = (np.empty(STORE_ROOM * size, np.int64), np.empty((STORE_ROOM * size, 3)),
+                     np.empty(STORE_ROOM * size, object),
+                     None if cols[3] is None else np.empty((STORE_ROOM * size, 9)),
+                     np.empty(STORE_ROOM * size, np.int64))
+            lo, hi = 0, kept[0].size
+            for dst, src in zip(store, (*kept, self._held_idx[count:]), strict=True):
+                if dst is not None:
+                    dst[:hi] = src
+            self._store = store
+        else:
+            lo += count
+        for dst, src in zip(store, (*cols, idx), strict=True):
+            if dst is not None:
+                dst[hi:hi + n] = src
+        self._span = (lo, hi + n)
+        self._held = tuple(None if a is None else a[lo:hi + n] for a in store[:4])
+        self._held_idx = store[4][lo:hi + n]
 
     def _note(self, behind: np.ndarray, late: np.ndarray) -> None:
         """Count the disorder ``behind`` (ns, newest before minus own stamp) by kind."""
@@ -164,6 +200,7 @@ class Reorder:
         if order is not None:
             cols = _take(cols, order)
             idx = idx[order]
+        self._store = None
         if count == idx.size:
             self._held, self._held_idx = None, np.zeros(0, np.int64)
             return cols
