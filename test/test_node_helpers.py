@@ -201,6 +201,38 @@ def test_deltas_latency_and_status() -> None:
                                                             ('n', '7')]
 
 
+def stamped_raw(msgtype: str, stamp_ns: int, frame: str, xyz: tuple[float, ...]) -> bytes:
+    """A serialized PointStamped or Vector3Stamped made by rosbags (independent of our codec)."""
+    t = TS.types
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    body = t['geometry_msgs/msg/Point' if 'Point' in msgtype else 'geometry_msgs/msg/Vector3'](
+        *xyz)
+    header = t['std_msgs/msg/Header'](stamp=t['builtin_interfaces/msg/Time'](
+        sec=sec, nanosec=nanosec), frame_id=frame)
+    msg = t[msgtype](header, body)
+    return bytes(TS.serialize_cdr(msg, msgtype))
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('count', [1, 3, 8, 9, 20])
+@pytest.mark.parametrize('msgtype', ['geometry_msgs/msg/PointStamped',
+                                     'geometry_msgs/msg/Vector3Stamped'])
+def test_pacer_template_encodes_what_rosbags_serialises(count: int, msgtype: str) -> None:
+    """The pacer's per-message template (up to SMALL_SLICE) and its vectorised path give the
+    bytes of rosbags' serialiser, from three value columns (one of them uint8 quality codes)."""
+    from railgsa_ros.bag.messages import LAYOUTS
+    from railgsa_ros.nodes.pacing import Template
+
+    rng = np.random.default_rng(count)
+    stamps = 1_700_000_000 * 10**9 + np.cumsum(rng.integers(1, 10**9, count))
+    columns = (rng.normal(size=count) * 1e3, rng.integers(0, 3, count).astype(np.uint8),
+               np.where(rng.random(count) < 0.3, NAN, rng.normal(size=count) * 1e-3))
+    got = Template(LAYOUTS[msgtype], 'track').encode(stamps, columns)
+    want = [stamped_raw(msgtype, int(t), 'track', (float(x), float(y), float(z)))
+            for t, x, y, z in zip(stamps, *columns, strict=True)]
+    assert got == want
+
+
 @pytest.mark.ros
 def test_diagnostics_publisher_survives_a_failing_task(ros_context: Any, spin: Callable,
                                                        wait_for: Callable) -> None:

@@ -434,17 +434,22 @@ class InversionPipeline:
         backwards (a time reset) adds no distance; speeds beyond SPEED_LIMIT_MPS count as that.
         The stamps of one segment piece increase strictly (the sanitiser's contract) except,
         after a time reset, at the first sample."""
+        lim = SPEED_LIMIT_MPS
         constant = speed.strides == (0,)  # one speed broadcast over the chunk
-        speed = np.clip(speed[:1] if constant else speed, -SPEED_LIMIT_MPS, SPEED_LIMIT_MPS)
+        if constant or stamps.size <= SMALL:  # clipped as Python floats (a live push)
+            v = [min(max(x, -lim), lim) for x in (speed[:1] if constant else speed).tolist()]
+        else:
+            speed = np.clip(speed, -lim, lim)
+            v = [float(speed[0]), float(speed[-1])]
         t0, c0, v0 = self._chain if self._chain is not None else \
-            (stamps[0], self.start_chainage_m, speed[0])
+            (stamps[0], self.start_chainage_m, v[0])
         first = max(int(stamps[0]) - int(t0), 0)  # ns since the previous sample
         if constant:  # c0 + v0-v trapezoid of the first step + v (t - t[0]): no running sum
             chain = (stamps - stamps[0]).astype(float)
-            chain *= speed[0] * 1e-9
-            chain += c0 + 0.5 * (v0 + speed[0]) * first * 1e-9
-        elif stamps.size <= SMALL:  # the same sum in Python floats (a live push)
-            t, v = stamps.tolist(), speed.tolist()
+            chain *= v[0] * 1e-9
+            chain += c0 + 0.5 * (v0 + v[0]) * first * 1e-9
+        elif stamps.size <= SMALL:  # the same sum in Python floats
+            t = stamps.tolist()
             c = c0 + (v0 + v[0]) * first * 0.5e-9
             sums = [c]
             for k in range(1, len(t)):
@@ -461,7 +466,7 @@ class InversionPipeline:
             steps[2:] *= speed[1:] + speed[:-1]
             steps[2:] *= 0.5e-9
             chain = np.cumsum(steps)[1:]
-        self._chain = (int(stamps[-1]), float(chain[-1]), float(speed[-1]))
+        self._chain = (int(stamps[-1]), float(chain[-1]), v[-1])
         return chain
 
     def _remove_bias(self, a_s: np.ndarray) -> np.ndarray:

@@ -251,8 +251,7 @@ class IrregularityNode(StreamNode):
             return
         out: GridOutput | None = self.guarded(lambda: step(self.grid), 'grid', self._new_grid)
         if out is not None and len(out):
-            self._grid_pacer.put(out.stamps_ns, np.column_stack([out.chainage_m, out.quality,
-                                                                 out.u_m]),
+            self._grid_pacer.put(out.stamps_ns, (out.chainage_m, out.quality, out.u_m),
                                  len(out) if live else 0)
 
     def _new_grid(self) -> None:
@@ -290,8 +289,7 @@ class IrregularityNode(StreamNode):
         if out is None or not len(out):
             return out
         self._speed_mps = float(out.speed_mps[-1])
-        self._pacer.put(out.stamps_ns, np.column_stack([out.chainage_m, out.quality, out.u_m]),
-                        live)
+        self._pacer.put(out.stamps_ns, (out.chainage_m, out.quality, out.u_m), live)
         return out
 
     # ------------------------------------------------------------------ diagnostics

@@ -163,8 +163,7 @@ class UncertaintyNode(StreamNode):
             return None
         band = update.band
         if len(band):  # x lower, y mean, z upper: NaN where INVALID, widened where DEGRADED
-            self._pacer.put(band.stamps_ns, np.column_stack([band.lower_m, band.mean_m,
-                                                             band.upper_m]), live)
+            self._pacer.put(band.stamps_ns, (band.lower_m, band.mean_m, band.upper_m), live)
         for record in update.windows:
             self._pubs[1].publish(sensitivity_message(record, self._hardware))
             last = record.compute_s * 1e3
