@@ -32,17 +32,27 @@ def write(tmp_path: Path, text: str) -> Path:
 @pytest.mark.ros
 def test_shipped_params_file_gives_both_nodes_the_defaults_in_any_namespace() -> None:
     from railgsa_ros.cli.run import node_values
+    from railgsa_ros.config import load_yaml
     from railgsa_ros.nodes.specs import (
         INVERSION_SPECS,
+        IRREGULARITY_SPECS,
         NODE_SPECS,
         UNCERTAINTY_SPECS,
         VEHICLE_SPECS,
     )
 
+    path = REPO / 'config' / 'railgsa.yaml'
     common = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS)
+    # every parameter written out, each in its section (a missing key is no default shown)
+    sections = {name: set(section['ros__parameters'])
+                for name, section in load_yaml(str(path)).items()}
+    assert sections == {'/**': {s.name for s in common},
+                        '/**/irregularity_node': {s.name for s in IRREGULARITY_SPECS},
+                        '/**/uncertainty_node': {s.name for s in UNCERTAINTY_SPECS}}
     for namespace in ('/', '/train1', '/fleet/train2'):
-        values = node_values(str(REPO / 'config' / 'railgsa.yaml'), namespace)
-        assert values['irregularity_node'] == {s.name: s.default for s in common}
+        values = node_values(str(path), namespace)
+        assert values['irregularity_node'] == {s.name: s.default
+                                               for s in (*common, *IRREGULARITY_SPECS)}
         assert values['uncertainty_node'] == {s.name: s.default
                                               for s in (*common, *UNCERTAINTY_SPECS)}
 
