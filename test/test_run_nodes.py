@@ -298,3 +298,23 @@ def test_demo_domain_is_ros_domain_id_when_set_else_a_reserved_one(monkeypatch: 
         session_domain().__enter__()
     assert main(['run']) == 2  # railgsa run: one line before any node starts
     assert capsys.readouterr().err == "error: ROS_DOMAIN_ID: 'train' is not a domain id (0-232)\n"
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('entry', [
+    'replay', 'record', 'check', 'irregularity_node', 'uncertainty_node', 'bag_replay_node',
+    'recorder', 'imu_sim_node'])
+def test_bad_ros_domain_id_is_one_line_exit_2_in_every_entry_point(
+        entry: str, tmp_path: Path, monkeypatch: Any, capsys: Any) -> None:
+    import importlib
+
+    monkeypatch.setenv('ROS_DOMAIN_ID', 'abc')
+    cli = {'replay': ['replay', str(tmp_path / 'bag')],
+           'record': ['record', '--out', str(tmp_path / 'out'), '--topics', '/x'],
+           'check': ['check', '--duration', '1']}
+    if entry in cli:
+        code = main(cli[entry])
+    else:
+        code = importlib.import_module(f'railgsa_ros.nodes.{entry}').main(['--ros-args'])
+    assert code == 2
+    assert capsys.readouterr().err == "error: ROS_DOMAIN_ID: 'abc' is not a domain id (0-232)\n"
