@@ -268,7 +268,7 @@ def test_launch_file_starts_both_nodes_from_one_params_file(monkeypatch: Any) ->
     assert set(nodes) == {'irregularity_node', 'uncertainty_node', 'recorder'}
     for kw in nodes.values():
         assert kw['package'].id == 'PACKAGE' and bound[kw['namespace'].id] == 'namespace'
-        assert 'name' not in kw  # a __node remap would rename uncertainty_node's helper too
+        assert 'name' not in kw  # no __node remap: the /**/<node> sections match the names
     given = [[e.id for e in nodes[n]['parameters'].elts] for n in NODES]
     assert given[0] == given[1] and len(given[0]) == 1 and bound[given[0][0]] == 'params_file'
     assert 'condition' in nodes['recorder'] and 'IfCondition' in ast.dump(
