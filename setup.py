@@ -25,7 +25,6 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*', 'benchmarks']),
-    package_data={PACKAGE: ['data/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
@@ -34,12 +33,12 @@ setup(
     ],
     python_requires='>=3.11',
     install_requires=['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'matplotlib>=3.7',
-                      'rosbags>=0.10', 'mcap>=1.1', 'mcap-ros2-support>=0.5',
-                      'duckdb>=1.1', 'dask[distributed]>=2024.8', 'zstandard>=0.20',
-                      'threadpoolctl>=3.1'],
+                      'rosbags>=0.10', 'mcap>=1.1', 'duckdb>=1.1', 'dask[distributed]>=2024.8',
+                      'zstandard>=0.20', 'threadpoolctl>=3.1'],
     extras_require={
         'ros': ROS,
-        'test': ['pytest>=7', 'pytest-timeout>=2.1', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10'],
+        'test': ['pytest>=7', 'pytest-timeout>=2.1', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10',
+                 'mcap-ros2-support>=0.5'],  # tests write bags with it
         'bench': ['SALib>=1.5', 'chaospy>=4.3'],
     },
     zip_safe=True,

@@ -5,7 +5,9 @@ A record is a dataclass of arrays whose LAST axis is the sample (``inverse.pipel
 included); ``join``, ``take`` and ``split`` are the one concatenation, selection and cut of such
 records. ``CHUNK`` is the one size of
 an offline piece: ``bag.reader.iter_imu`` reads pieces of it and ``uncertainty.offline_bands``
-feeds in-memory streams in pieces of it.
+feeds in-memory streams in pieces of it. One exception: ``review.stream.REVIEW_CHUNK`` (16,384
+samples), the pieces ``railgsa review`` reads, smaller against heap fragmentation (the review
+keeps no per-sample array; docs/review.md, Memory).
 """
 
 from __future__ import annotations

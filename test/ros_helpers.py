@@ -1,7 +1,9 @@
 """Shared builders and listeners of the ROS tests (issue 14 item 4): Imu and Odometry messages,
-their serialized (raw CDR) form as the nodes' subscriptions receive it, header stamps, and a
-thread-safe collector of one topic's messages. rclpy is imported inside the functions, so that
-the module imports where the ``ros`` extra is missing (those tests are skipped)."""
+their serialized (raw CDR) form as the nodes' subscriptions receive it, header stamps, a
+thread-safe collector of one topic's messages (``Collector``) and of /diagnostics
+(``DiagnosticsLog``), and a paced burst publisher (``publish_bursts``). rclpy is imported
+inside the functions, so that the module imports where the ``ros`` extra is missing (those
+tests are skipped)."""
 
 from __future__ import annotations
 
@@ -112,7 +114,7 @@ class Collector:
         self.lock = threading.Lock()
         self.rows: list[Any] = []
         self._row = row
-        node.create_subscription(msgtype, topic, self._keep, qos)
+        self.subscription = node.create_subscription(msgtype, topic, self._keep, qos)
 
     def _keep(self, msg: Any) -> None:
         item = self._row(msg)
@@ -132,3 +134,52 @@ class Collector:
         """Forget the rows received so far."""
         with self.lock:
             self.rows.clear()
+
+
+class DiagnosticsLog(Collector):
+    """The /diagnostics arrays ``node`` receives: per array that has statuses named
+    ``prefix``..., the dict rest of the name -> ``row(status)`` (default: the status itself;
+    prefix '' keeps every status under its full name). Thread-safe as Collector."""
+
+    def __init__(self, node: Any, prefix: str = '', row: Callable[[Any], Any] = lambda s: s,
+                 qos: Any = 10) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.prefix = prefix
+        self._status = row
+        super().__init__(node, DiagnosticArray, '/diagnostics', qos, self._statuses)
+
+    def _statuses(self, msg: Any) -> dict[str, Any]:
+        return {name: self._status(s) for name, s in statuses(msg, self.prefix).items()}
+
+    def _keep(self, msg: Any) -> None:
+        item = self._row(msg)
+        if item:
+            with self.lock:
+                self.rows.append(item)
+
+    def first(self, pred: Callable[[dict[str, Any]], bool]) -> dict[str, Any] | None:
+        """The first array received that satisfies ``pred``, None before there is one."""
+        return next((d for d in self.snapshot() if pred(d)), None)
+
+    def latest(self) -> dict[str, Any]:
+        """Name -> the newest row of each status received so far."""
+        merged: dict[str, Any] = {}
+        for report in self.snapshot():
+            merged.update(report)
+        return merged
+
+
+def publish_bursts(publisher: Any, msgs: Sequence[Any], rate_hz: float,
+                   burst: int | None = None) -> None:
+    """Publish ``msgs`` at about ``rate_hz`` (msg/s) in bursts of ``burst`` (default 10 ms
+    worth) paced on the monotonic clock; never faster than that when a burst took long."""
+    import time
+
+    size = burst or max(1, round(rate_hz / 100))
+    due = time.monotonic()
+    for i in range(0, len(msgs), size):
+        time.sleep(max(0.0, due - time.monotonic()))
+        due = time.monotonic() + size / rate_hz  # from this burst's start: no catching up
+        for msg in msgs[i:i + size]:
+            publisher.publish(msg)

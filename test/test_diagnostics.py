@@ -4,13 +4,12 @@ values, hardware_id from the IMU frame_id or the parameter."""
 from __future__ import annotations
 
 from collections.abc import Callable
-import threading
 import time
 from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import NS, G, imu_msgs
+from ros_helpers import NS, DiagnosticsLog, G, imu_msgs
 
 pytestmark = pytest.mark.ros
 
@@ -34,7 +33,6 @@ def test_values_keep_full_precision_and_hardware_id_prefers_the_parameter() -> N
 
 def test_idle_node_is_stale_then_ok_then_warns_when_input_stops(
         ros_context: Any, spin: Callable, wait_for: Callable) -> None:
-    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import Imu
@@ -45,19 +43,11 @@ def test_idle_node_is_stale_then_ok_then_warns_when_input_stops(
     spin(IrregularityNode(context=ros_context, parameter_overrides=[
         Parameter('use_odom', value=False), Parameter('idle_flush_s', value=3600.0)]))
     test = Node('diagnostics_test', context=ros_context)
-    lock, reports = threading.Lock(), []
-
-    def on_diag(msg: Any) -> None:
-        statuses = {s.name.split(': ', 1)[1]: s for s in msg.status
-                    if s.name.startswith('irregularity_node: ')}
-        if statuses:
-            with lock:
-                reports.append(statuses)
-    test.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+    reports = DiagnosticsLog(test, 'irregularity_node: ')
     imu = test.create_publisher(Imu, 'imu/data', sensor_qos())
     spin(test)
-    assert wait_for(lambda: reports, 10.0)
-    first = reports[0]
+    assert wait_for(lambda: len(reports), 10.0)
+    first = reports.snapshot()[0]
     assert {name: s.level for name, s in first.items()} == {
         'imu input': STALE, 'inversion': STALE, 'input checks': STALE, 'location': STALE}
     assert first['imu input'].message == 'no IMU input yet'
@@ -71,15 +61,14 @@ def test_idle_node_is_stale_then_ok_then_warns_when_input_stops(
 
     def received(d: dict) -> str:
         return {kv.key: kv.value for kv in d['imu input'].values}['received']
-    assert wait_for(lambda: any(received(d) == '200' for d in reports), 10.0)
-    with lock:
-        fed = next(d for d in reports if received(d) == '200')
+    assert wait_for(lambda: reports.first(lambda d: received(d) == '200'), 10.0)
+    fed = reports.first(lambda d: received(d) == '200')
     assert fed['imu input'].level in (OK, WARN)  # WARN: the one period may see a gap
     assert fed['imu input'].hardware_id == 'imu_link'
     assert fed['input checks'].level != STALE
     n = len(reports)
     assert wait_for(lambda: len(reports) > n + 1, 10.0)  # a whole period without input
-    idle = reports[-1]['imu input']
+    idle = reports.snapshot()[-1]['imu input']
     assert (idle.level, idle.message) == (WARN, 'no IMU input in the last period')
     assert idle.hardware_id == 'imu_link'
     test.destroy_node()

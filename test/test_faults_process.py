@@ -14,7 +14,16 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import T0_NS, Collector, header_stamp, imu_msgs, stamp_ns, values
+from ros_helpers import (
+    T0_NS,
+    Collector,
+    DiagnosticsLog,
+    header_stamp,
+    imu_msgs,
+    publish_bursts,
+    stamp_ns,
+    values,
+)
 from test_irregularity_node import PARAMS, offline
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -27,7 +36,6 @@ class Probe:
     """Publishes imu/data; records outputs, band stamps and the irregularity /diagnostics."""
 
     def __init__(self, ros_context: Any, spin: Callable) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PointStamped, Vector3Stamped
         from rclpy.node import Node
         from sensor_msgs.msg import Imu
@@ -40,22 +48,16 @@ class Probe:
                              lambda m: (stamp_ns(m.header), m.point.z))
         self.band = Collector(self.node, Vector3Stamped, 'track/irregularity_band',
                               output_qos(20_000), header_stamp)
-        # the values of each 'irregularity_node: inversion' status
-        self.diag = Collector(self.node, DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS,
-                              lambda m: [values(s) for s in m.status
-                                         if s.name == 'irregularity_node: inversion'])
+        # per /diagnostics array: irregularity_node's task -> its values
+        self.diag = DiagnosticsLog(self.node, 'irregularity_node: ', values, DIAGNOSTICS_QOS)
 
     def inversion(self) -> list[dict[str, str]]:
         """The inversion statuses' values received so far, in order."""
-        return [v for rows in self.diag.snapshot() for v in rows]
+        return [d['inversion'] for d in self.diag.snapshot() if 'inversion' in d]
 
     def publish(self, msgs: list) -> None:
         """At about 1 kHz, in 20-message bursts."""
-        start = time.monotonic()
-        for i in range(0, len(msgs), 20):
-            time.sleep(max(0.0, start + i * 1e-3 - time.monotonic()))
-            for msg in msgs[i:i + 20]:
-                self.imu.publish(msg)
+        publish_bursts(self.imu, msgs, 1000.0, burst=20)
 
 
 def test_kill_and_restart_resumes_clean_and_others_keep_going(

@@ -11,13 +11,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-import threading
 import time
 from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import Collector, point_row, vector_row
+from ros_helpers import Collector, DiagnosticsLog, point_row, values, vector_row
 
 from railgsa_ros.bag import BagWriter, read_messages, read_stamped
 from railgsa_ros.bag.messages import POINT_STAMPED, VECTOR3_STAMPED
@@ -87,7 +86,7 @@ def last_diagnostics(bag: Path) -> dict[str, dict[str, str]]:
     last: dict[str, dict[str, str]] = {}
     for _, _, msg in read_messages(bag, [DIAG]):
         for status in msg.status:
-            last[status.name] = {kv.key: kv.value for kv in status.values}
+            last[status.name] = values(status)
     return last
 
 
@@ -96,26 +95,18 @@ class Probe:
     and, with ``outputs``, both output topics with a reader history of ``depth``."""
 
     def __init__(self, spin: Callable, context: Any, depth: int, outputs: bool = False) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PointStamped, Vector3Stamped
         from rclpy.node import Node
 
         from railgsa_ros.nodes.qos import output_qos
 
-        self.lock = threading.Lock()
-        self.latest: dict[str, dict[str, str]] = {}
         self.outputs = outputs
         self.node = spin(Node('integration_probe', context=context))
-        self.node.create_subscription(DiagnosticArray, DIAG, self._diagnostics, 100)
+        self.diag = DiagnosticsLog(self.node, '', values, 100)  # status name -> values
         self.rows = {topic: Collector(self.node, msgtype, topic, output_qos(depth), row)
                      for topic, msgtype, row in ((IRR, PointStamped, point_row),
                                                  (BAND, Vector3Stamped, vector_row))
                      if outputs}
-
-    def _diagnostics(self, msg: Any) -> None:
-        with self.lock:
-            for status in msg.status:
-                self.latest[status.name] = {kv.key: kv.value for kv in status.values}
 
     def inputs_ready(self, topics: list[str], readers: int, timeout: float) -> bool:
         """Wait until each topic has ``readers`` subscriptions in the ROS graph."""
@@ -139,8 +130,7 @@ class Probe:
 
     def clear(self) -> None:
         """Forget everything received so far (before another attempt)."""
-        with self.lock:
-            self.latest.clear()
+        self.diag.clear()
         for rows in self.rows.values():
             rows.clear()
 
@@ -155,8 +145,7 @@ class Probe:
                 np.array([r[1:] for r in rows], float).reshape(-1, 3))
 
     def value(self, status: str, key: str) -> int:
-        with self.lock:
-            return int(self.latest.get(status, {}).get(key, -1))
+        return int(self.diag.latest().get(status, {}).get(key, -1))
 
     def flushed(self) -> bool:
         """Both nodes flushed the end of the stream (idle_flush_s after the last input) and
@@ -218,10 +207,9 @@ def run_live(tmp: Path, bag: Path, n_imu: int, probe: Probe, rate: float = 1.0,
         replay = system.command('replay', str(bag), *replay_args)
         played_s = n_imu / 1000.0 / rate + LEAD_S
         assert replay.wait(played_s + 60.0) == 0, _logs(system)
-        assert probe.settled(n_imu, 60.0), (probe.latest, _logs(system))
+        assert probe.settled(n_imu, 60.0), (probe.diag.latest(), _logs(system))
         probe.drained(60.0)  # before the nodes stop: their writers still resend what is missing
-        with probe.lock:
-            diagnostics = {name: dict(values) for name, values in probe.latest.items()}
+        diagnostics = probe.diag.latest()
         result = recorder.stop()
         assert result.rc == 0, result.stderr
         for node in nodes:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from pathlib import Path
-import threading
 import time
 from typing import Any
 
@@ -14,13 +13,16 @@ import pytest
 from ros_helpers import (
     T0_NS,
     Collector,
+    DiagnosticsLog,
     G,
     imu_msg,
     imu_msgs,
     odometry,
     point_row,
+    publish_bursts,
     serialized,
     stamp_ns,
+    values,
 )
 import yaml
 
@@ -90,7 +92,6 @@ class Rig:
 
     def __init__(self, ros_context: Any, spin: Callable, wait_for: Callable,
                  **params: Any) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PointStamped
         from nav_msgs.msg import Odometry
         from rclpy.node import Node
@@ -104,13 +105,13 @@ class Rig:
         overrides = [Parameter(k, value=v) for k, v in {**PARAMS, **HOLD, **params}.items()]
         self.node = spin(IrregularityNode(context=ros_context, parameter_overrides=overrides))
         self.test = Node('irregularity_test', context=ros_context)
-        self.lock = threading.Lock()
         # (stamp, point.x, point.z, frame, point.y) of each output
         self.out = Collector(self.test, PointStamped, 'track/irregularity', output_qos(20_000),
                              lambda m: (stamp_ns(m.header), m.point.x, m.point.z,
                                         m.header.frame_id, int(m.point.y)))  # a whole run
-        self.diag: list[dict[str, tuple[bytes, str, dict[str, str]]]] = []
-        self.test.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        # per /diagnostics array: task -> (level, message, values)
+        self.diag = DiagnosticsLog(self.test, 'irregularity_node: ',
+                                   lambda s: (s.level, s.message, values(s)))
         self.imu = self.test.create_publisher(Imu, 'imu/data', sensor_qos())
         self.odom = self.test.create_publisher(Odometry, 'odom', output_qos(10))
         spin(self.test)
@@ -123,20 +124,9 @@ class Rig:
         """point.y of each output so far."""
         return [row[4] for row in self.out.snapshot()]
 
-    def _on_diag(self, msg: Any) -> None:
-        statuses = {s.name.split(': ', 1)[1]: (s.level, s.message,
-                                               {kv.key: kv.value for kv in s.values})
-                    for s in msg.status if s.name.startswith('irregularity_node: ')}
-        if statuses:
-            with self.lock:
-                self.diag.append(statuses)
-
-    def publish(self, msgs: list, burst: int = 200) -> None:
+    def publish(self, msgs: list) -> None:
         """Publish in bursts (about 4 kHz) that the reader history (1000) absorbs."""
-        for i, msg in enumerate(msgs):
-            self.imu.publish(msg)
-            if i % burst == burst - 1:
-                time.sleep(0.05)
+        publish_bursts(self.imu, msgs, 4000.0, burst=200)
 
     def outputs(self, count: int, timeout: float = 20.0) -> tuple[np.ndarray, ...]:
         """Wait for ``count`` outputs; stamps (int64), chainage, u, frame ids."""
@@ -150,14 +140,9 @@ class Rig:
     def diagnostics(self, pred: Callable[[dict], bool], timeout: float = 10.0) -> dict:
         """The first /diagnostics statuses (task -> (level, message, values)) received that
         satisfy ``pred``."""
-        found: list[dict] = []
-
-        def check() -> bool:
-            with self.lock:
-                found[:] = [d for d in self.diag if pred(d)][:1]
-            return bool(found)
-        assert self.wait_for(check, timeout), self.diag[-1:] or 'no /diagnostics'
-        return found[0]
+        assert self.wait_for(lambda: self.diag.first(pred) is not None, timeout), \
+            self.diag.snapshot()[-1:] or 'no /diagnostics'
+        return self.diag.first(pred)
 
 
 @pytest.fixture
@@ -589,8 +574,7 @@ def test_quality_counts_on_diagnostics_equal_the_published_codes(run: Any,
     r.publish(imu_msgs(stamps, acc))
     r.outputs(len(ref), timeout=60.0)
     d = r.diagnostics(lambda d: d['inversion'][2]['published'] == str(len(ref)))
-    with r.lock:
-        got = Counter(r.quality)
+    got = Counter(r.quality)
     assert sum(got.values()) == len(ref)
     values = d['inversion'][2]
     assert {q: int(values[q]) for q in ('valid', 'degraded', 'invalid')} == \

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import Collector, header_stamp
+from ros_helpers import Collector, DiagnosticsLog, header_stamp, values
 from test_integration_replay import IRR_NODE, PARAMS, UNC_NODE, _logs, scenario, write_bag
 
 from railgsa_ros.system import System
@@ -73,20 +73,13 @@ class Reader:
 
 def diagnostics_values(node: Any, timeout: float) -> dict[str, dict[str, str]]:
     """status name -> values of the next /diagnostics array of each node."""
-    from diagnostic_msgs.msg import DiagnosticArray
-
-    found: dict[str, dict[str, str]] = {}
-
-    def keep(msg: Any) -> None:
-        for status in msg.status:
-            found[status.name] = {kv.key: kv.value for kv in status.values}
-    sub = node.create_subscription(DiagnosticArray, '/diagnostics', keep, 50)
+    log = DiagnosticsLog(node, '', values, 50)
     deadline = time.monotonic() + timeout
     names = [f'{n}: imu input' for n in (IRR_NODE, UNC_NODE)]
-    while not all(n in found for n in names) and time.monotonic() < deadline:
+    while not all(n in log.latest() for n in names) and time.monotonic() < deadline:
         time.sleep(0.1)
-    node.destroy_subscription(sub)
-    return dict(found)
+    node.destroy_subscription(log.subscription)
+    return log.latest()
 
 
 # At 5x only: the resets, the time jump and the end flush are decided on header stamps (the

@@ -21,6 +21,20 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / 'railgsa_ros'
 ROS_MODULE = re.compile(r'^(rclpy|rcl_interfaces|builtin_interfaces|rosidl\w*|ament\w*|\w+_msgs|'
                         r'\w+_srvs)$')
+#: third-party module -> (its pip requirement names, its rosdep keys): what a pip install and a
+#: ROS install must both provide for the package's imports
+THIRD_PARTY = {
+    'numpy': (('numpy',), ('python3-numpy',)),
+    'scipy': (('scipy',), ('python3-scipy',)),
+    'yaml': (('pyyaml',), ('python3-yaml',)),
+    'matplotlib': (('matplotlib',), ('python3-matplotlib',)),
+    'rosbags': (('rosbags',), ('python3-rosbags-pip',)),
+    'mcap': (('mcap',), ('python3-mcap-pip',)),
+    'zstandard': (('zstandard',), ('python3-zstandard',)),
+    'threadpoolctl': (('threadpoolctl',), ('python3-threadpoolctl',)),
+    'duckdb': (('duckdb',), ('python3-duckdb-pip',)),
+    'dask': (('dask[distributed]',), ('python3-dask-pip', 'python3-distributed-pip')),
+}
 
 
 def setup_kwargs(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
@@ -64,6 +78,31 @@ def test_package_xml_format3_with_the_real_dependencies() -> None:
     assert setup_version == root.findtext('version')
 
 
+def requirement_name(requirement: str) -> str:
+    """``'dask[distributed]>=2024.8'`` -> ``'dask[distributed]'``."""
+    return re.split(r'[<>=!~; ]', requirement, maxsplit=1)[0].lower()
+
+
+def test_every_third_party_import_is_a_pip_and_a_rosdep_dependency(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    imports = set().union(*(top_level_imports(p) for p in PACKAGE.rglob('*.py')))
+    third_party = {m for m in imports - set(sys.stdlib_module_names) - {'railgsa_ros'}
+                   if not ROS_MODULE.match(m)}
+    assert third_party == set(THIRD_PARTY), 'add the module to THIRD_PARTY, setup.py and ' \
+        f'package.xml: {third_party ^ set(THIRD_PARTY)}'
+    requires = {requirement_name(r) for r in setup_kwargs(monkeypatch)['install_requires']}
+    root = ET.parse(REPO / 'package.xml').getroot()
+    exec_deps = {e.text for tag in ('depend', 'exec_depend') for e in root.findall(tag)}
+    for module, (pip_names, keys) in THIRD_PARTY.items():
+        assert set(pip_names) <= requires, (module, pip_names)
+        assert set(keys) <= exec_deps, (module, keys)
+    # only the tests need these: not a run-time dependency of either install
+    assert 'mcap-ros2-support' not in requires
+    test_extra = {requirement_name(r) for r in setup_kwargs(monkeypatch)['extras_require']['test']}
+    assert {'pytest', 'hypothesis', 'mcap-ros2-support'} <= test_extra
+    assert 'python3-mcap-ros2-support-pip' in {e.text for e in root.findall('test_depend')}
+
+
 def test_setup_entry_points_import(monkeypatch: pytest.MonkeyPatch, have_rclpy: bool) -> None:
     kwargs = setup_kwargs(monkeypatch)
     scripts = dict(s.replace(' ', '').split('=') for s in
@@ -79,6 +118,8 @@ def test_setup_entry_points_import(monkeypatch: pytest.MonkeyPatch, have_rclpy: 
             continue  # the nodes need the ros extra
         assert callable(getattr(importlib.import_module(module), attr)), target
     assert 'test' not in kwargs['packages'] and 'railgsa_ros.bag' in kwargs['packages']
+    for pattern in kwargs.get('package_data', {}).get('railgsa_ros', []):
+        assert list(PACKAGE.glob(pattern)), pattern  # no package data that does not exist
     data = dict(kwargs['data_files'])
     assert data['share/ament_index/resource_index/packages'] == ['resource/railgsa_ros']
     assert (REPO / 'resource' / 'railgsa_ros').is_file()

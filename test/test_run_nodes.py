@@ -32,17 +32,27 @@ def write(tmp_path: Path, text: str) -> Path:
 @pytest.mark.ros
 def test_shipped_params_file_gives_both_nodes_the_defaults_in_any_namespace() -> None:
     from railgsa_ros.cli.run import node_values
+    from railgsa_ros.config import load_yaml
     from railgsa_ros.nodes.specs import (
         INVERSION_SPECS,
+        IRREGULARITY_SPECS,
         NODE_SPECS,
         UNCERTAINTY_SPECS,
         VEHICLE_SPECS,
     )
 
+    path = REPO / 'config' / 'railgsa.yaml'
     common = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS)
+    # every parameter written out, each in its section (a missing key is no default shown)
+    sections = {name: set(section['ros__parameters'])
+                for name, section in load_yaml(str(path)).items()}
+    assert sections == {'/**': {s.name for s in common},
+                        '/**/irregularity_node': {s.name for s in IRREGULARITY_SPECS},
+                        '/**/uncertainty_node': {s.name for s in UNCERTAINTY_SPECS}}
     for namespace in ('/', '/train1', '/fleet/train2'):
-        values = node_values(str(REPO / 'config' / 'railgsa.yaml'), namespace)
-        assert values['irregularity_node'] == {s.name: s.default for s in common}
+        values = node_values(str(path), namespace)
+        assert values['irregularity_node'] == {s.name: s.default
+                                               for s in (*common, *IRREGULARITY_SPECS)}
         assert values['uncertainty_node'] == {s.name: s.default
                                               for s in (*common, *UNCERTAINTY_SPECS)}
 
@@ -258,7 +268,7 @@ def test_launch_file_starts_both_nodes_from_one_params_file(monkeypatch: Any) ->
     assert set(nodes) == {'irregularity_node', 'uncertainty_node', 'recorder'}
     for kw in nodes.values():
         assert kw['package'].id == 'PACKAGE' and bound[kw['namespace'].id] == 'namespace'
-        assert 'name' not in kw  # a __node remap would rename uncertainty_node's helper too
+        assert 'name' not in kw  # no __node remap: the /**/<node> sections match the names
     given = [[e.id for e in nodes[n]['parameters'].elts] for n in NODES]
     assert given[0] == given[1] and len(given[0]) == 1 and bound[given[0][0]] == 'params_file'
     assert 'condition' in nodes['recorder'] and 'IfCondition' in ast.dump(
@@ -288,3 +298,23 @@ def test_demo_domain_is_ros_domain_id_when_set_else_a_reserved_one(monkeypatch: 
         session_domain().__enter__()
     assert main(['run']) == 2  # railgsa run: one line before any node starts
     assert capsys.readouterr().err == "error: ROS_DOMAIN_ID: 'train' is not a domain id (0-232)\n"
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('entry', [
+    'replay', 'record', 'check', 'irregularity_node', 'uncertainty_node', 'bag_replay_node',
+    'recorder', 'imu_sim_node'])
+def test_bad_ros_domain_id_is_one_line_exit_2_in_every_entry_point(
+        entry: str, tmp_path: Path, monkeypatch: Any, capsys: Any) -> None:
+    import importlib
+
+    monkeypatch.setenv('ROS_DOMAIN_ID', 'abc')
+    cli = {'replay': ['replay', str(tmp_path / 'bag')],
+           'record': ['record', '--out', str(tmp_path / 'out'), '--topics', '/x'],
+           'check': ['check', '--duration', '1']}
+    if entry in cli:
+        code = main(cli[entry])
+    else:
+        code = importlib.import_module(f'railgsa_ros.nodes.{entry}').main(['--ros-args'])
+    assert code == 2
+    assert capsys.readouterr().err == "error: ROS_DOMAIN_ID: 'abc' is not a domain id (0-232)\n"

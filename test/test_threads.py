@@ -54,3 +54,14 @@ def test_the_cli_and_the_nodes_limit_blas_threads(entry: str,
 
         assert console_main(lambda args: 0) == 0
     assert calls == [1]
+
+
+def test_without_threadpoolctl_only_the_variable_is_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    from railgsa_ros.threads import limit_blas_threads
+
+    for name in BLAS_ENV:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setitem(sys.modules, 'threadpoolctl', None)  # import raises ImportError
+    assert 'numpy' in sys.modules
+    limit_blas_threads()
+    assert os.environ['OPENBLAS_NUM_THREADS'] == '1'

@@ -15,13 +15,16 @@ import pytest
 from ros_helpers import (
     T0_NS,
     Collector,
+    DiagnosticsLog,
     header_stamp,
     imu_msgs,
     odometry,
+    publish_bursts,
     serialized,
     stamp_ns,
     vector_row,
 )
+from ros_helpers import values as status_values
 
 pytestmark = pytest.mark.ros
 
@@ -79,16 +82,15 @@ class Listener:
         from railgsa_ros.nodes.qos import output_qos, sensor_qos
 
         self.node = Node('uncertainty_test', context=ros_context)
-        self.lock = threading.Lock()
         self.band = Collector(self.node, Vector3Stamped, 'track/irregularity_band',
                               output_qos(DEPTH), vector_row)
         self.irregularity = Collector(self.node, PointStamped, 'track/irregularity',
                                       output_qos(DEPTH), header_stamp)
         self.sensitivity = Collector(self.node, DiagnosticArray, 'track/sensitivity',
                                      output_qos(100))
-        self.diag: list[dict] = []
-        self._name = node_name
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        # per /diagnostics array: task -> (level, values)
+        self.diag = DiagnosticsLog(self.node, f'{node_name}: ',
+                                   lambda s: (s.level, status_values(s)))
         self.imu = self.node.create_publisher(Imu, 'imu/data', sensor_qos())
         # its own executor thread: the node under test never delays the reading of its outputs
         self.executor = SingleThreadedExecutor(context=ros_context)
@@ -101,21 +103,9 @@ class Listener:
         self.thread.join(5.0)
         self.node.destroy_node()
 
-    def _on_diag(self, msg: Any) -> None:
-        prefix = f'{self._name}: '
-        statuses = {s.name[len(prefix):]: (s.level, {kv.key: kv.value for kv in s.values})
-                    for s in msg.status if s.name.startswith(prefix)}
-        if statuses:
-            with self.lock:
-                self.diag.append(statuses)
-
     def publish(self, msgs: list, rate_hz: float = 2000.0) -> None:
         """Publish in 10 ms bursts at about ``rate_hz``."""
-        burst = max(1, int(rate_hz / 100))
-        for i in range(0, len(msgs), burst):
-            for m in msgs[i:i + burst]:
-                self.imu.publish(m)
-            time.sleep(0.01)
+        publish_bursts(self.imu, msgs, rate_hz)
 
 
 @pytest.fixture
@@ -149,10 +139,6 @@ def rig(ros_context: Any, spin: Callable, wait_for: Callable,
         time.sleep(0.2)
         return node, listener
     return make
-
-
-def _values(status: Any) -> dict[str, str]:
-    return {kv.key: kv.value for kv in status.values}
 
 
 def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Callable,
@@ -189,28 +175,25 @@ def test_band_and_sensitivity_equal_the_offline_streaming_code(run: Any, rig: Ca
         *params, summary = msg.status
         assert [s.name for s in params] == ['k_s', 'k_us', 'c'] and summary.name == 'summary'
         for i, status in enumerate(params):
-            v = _values(status)
+            v = status_values(status)
             np.testing.assert_allclose([float(v['sobol_first']), float(v['sobol_total'])],
                                        [rec.sobol_first[i], rec.sobol_total[i]], rtol=1e-5,
                                        atol=1e-6)
             # delta bins surrogate samples: coefficients 1e-16 apart (other chunking) may move
             # a sample across a bin edge
             assert float(v['delta']) == pytest.approx(rec.delta[i], abs=1e-3)
-        s = _values(summary)
+        s = status_values(summary)
         assert s['qoi'] == rec.qoi and s['rule'] == 'pem5' and s['model_evaluations'] == '19'
         assert int(s['first_stamp_ns']) == rec.first_stamp_ns
         assert int(s['last_stamp_ns']) == rec.last_stamp_ns == stamp_ns(msg.header)
         assert float(s['chainage_end_m']) == pytest.approx(rec.chainage_end_m, rel=1e-5)
-    diag: list[dict] = []
-
-    def counted() -> bool:
-        with listener.lock:
-            diag[:] = [d for d in listener.diag if d.get('imu input', (0, {}))[1].get(
-                'rejected') == '2' and d['uncertainty'][1].get('windows', '0') != '0'][:1]
-        return bool(diag)
-    assert wait_for(counted, 10.0), listener.diag[-1:]
+    def counted(d: dict) -> bool:
+        return (d.get('imu input', (0, {}))[1].get('rejected') == '2'
+                and d['uncertainty'][1].get('windows', '0') != '0')
+    assert wait_for(lambda: listener.diag.first(counted), 10.0), listener.diag.snapshot()[-1:]
+    diag = [listener.diag.first(counted)]
     values = diag[0]['imu input'][1]
-    assert any(d['imu input'][0] == b'\x01' for d in listener.diag)  # WARN in that period
+    assert any(d['imu input'][0] == b'\x01' for d in listener.diag.snapshot())  # WARN then
     assert values['rejected_nan'] == values['rejected_malformed'] == '1'
     unc = diag[0]['uncertainty'][1]
     assert unc['rule_points'] == '19' and float(unc['window_compute_ms']) > 0

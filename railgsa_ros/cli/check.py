@@ -45,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
     """Collect, judge, print; 0 when nothing failed, else 1."""
     from railgsa_ros.health import checklist, exit_code, format_items, items_json
     from railgsa_ros.imu import imu_spec
+    from railgsa_ros.system import env_domain
 
+    env_domain()  # a ROS_DOMAIN_ID that is no domain id: one line, not an rclpy traceback
     _positive('--duration', args.duration, MAX_DURATION_S)
     _positive('--rate', args.rate)
     try:

@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     ing = sub.add_parser('ingest', help='invert bags on Dask and store them in the database',
                          description='Invert each bag (one Dask task per bag), align it on its '
-                                     "line's chainage, store it, then refuse, re-detect and "
+                                     "line's chainage, store it, then re-fuse, re-detect and "
                                      'trend the line. Exit 1 when some bag failed (the others '
                                      'are stored), 2 on bad options.')
     ing.add_argument('bags', nargs='+', metavar='BAG', help='rosbag2 bags (directory or file)')

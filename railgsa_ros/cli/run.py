@@ -44,8 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     'Runs until Ctrl-C / SIGTERM (forwarded to the nodes) or until a node '
                     'fails (exit code non-zero).')
     p.add_argument('--params', metavar='FILE',
-                   help='ROS params file for both nodes (shared values under "/**:", '
-                   'uncertainty_node\'s own under "/**/uncertainty_node:", as '
+                   help='ROS params file for both nodes (shared values under "/**:", each '
+                   'node\'s own under "/**/irregularity_node:" and "/**/uncertainty_node:", as '
                    'config/railgsa.yaml); default: the built-in defaults')
     p.add_argument('--namespace', default='', metavar='NS',
                    help='namespace of both nodes and their topics (e.g. train1: '
@@ -77,6 +77,7 @@ def node_values(path: str, namespace: str) -> dict[str, dict[str, Any]]:
     from railgsa_ros.nodes.specs import (
         ALL_PARAMETER_NAMES,
         INVERSION_SPECS,
+        IRREGULARITY_SPECS,
         NODE_SPECS,
         UNCERTAINTY_SPECS,
         VEHICLE_SPECS,
@@ -85,7 +86,7 @@ def node_values(path: str, namespace: str) -> dict[str, dict[str, Any]]:
     from railgsa_ros.uncertainty import UncertaintyConfig
 
     common = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS)
-    specs = {NODES[0]: common, NODES[1]: (*common, *UNCERTAINTY_SPECS)}
+    specs = {NODES[0]: (*common, *IRREGULARITY_SPECS), NODES[1]: (*common, *UNCERTAINTY_SPECS)}
     doc = load_yaml(path)
     values = {}
     for node, own in specs.items():

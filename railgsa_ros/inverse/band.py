@@ -14,8 +14,6 @@ who filter themselves; what limits it is in docs/inversion.md) or custom limits 
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 from scipy import fft
 
@@ -26,8 +24,6 @@ BANDS_M = {'d1': (3.0, 25.0), 'd2': (25.0, 70.0), 'd3': (70.0, 200.0)}  # EN 138
 #: IMU bandwidth (ADXL355 ODR/4 = 250 Hz holds 1 m up to 250 m/s), the longest is D3's edge
 WIDE_M = (1.0, 200.0)
 _DESIGN_PERIODS = 32  # default span of a design grid, periods of the lowest band frequency
-
-Response = Callable[[np.ndarray], np.ndarray]
 
 
 def band_limits(band: str) -> tuple[float, float]:

@@ -47,17 +47,19 @@ from rclpy.parameter import Parameter
 from railgsa_ros.bag.messages import POINT_STAMPED
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.grid import DEFAULT_STEP_M, GridOutput, GridStream
+from railgsa_ros.inverse.grid import GridOutput, GridStream
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, LatencyWindow, Report, quality_values
 from railgsa_ros.nodes.imu_conversion import ImuBatch
 from railgsa_ros.nodes.lifecycle import run
 from railgsa_ros.nodes.pacing import OutputPacer
-from railgsa_ros.nodes.params import ParamSpec, accept_integers, declare, merged
+from railgsa_ros.nodes.params import accept_integers, declare, merged
 from railgsa_ros.nodes.qos import output_qos
 from railgsa_ros.nodes.specs import (
     INVERSION_SPECS,
+    IRREGULARITY_PERIOD,
+    IRREGULARITY_SPECS,
     NODE_SPECS,
     VEHICLE_SPECS,
     inversion_config,
@@ -67,20 +69,8 @@ from railgsa_ros.nodes.stream_node import OUTPUT_FRAME, StreamNode
 from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams
 
 NODE_NAME = 'irregularity_node'
-#: batches of about two samples at 1 kHz: a call's fixed cost (core ~85 us plus decoding,
-#: publishing and the reader's wake-up) is several samples' worth; 2 ms keeps the CPU below the
-#: relay's (benchmarks/bench_node_latency.py, docs/nodes.md "CPU against latency")
-PERIOD = ParamSpec('process_period_s', 0.002, 'IMU samples are handed to the policy in one '
-                   'batch at most this often (less CPU per sample, up to this much more '
-                   'latency); 0: as they arrive, s', (0.0, 1.0), read_only=True)
-#: the profile on the chainage grid as a second topic: off by default (a second policy with the
-#: wider pre-band, about the cost of the first)
-GRID = (ParamSpec('publish_grid', False, 'also publish track/irregularity_grid: the profile on '
-                  'chainage multiples of grid_step_m, band-passed on distance',
-                  read_only=True),
-        ParamSpec('grid_step_m', DEFAULT_STEP_M, 'chainage step of track/irregularity_grid, m',
-                  (0.01, 10.0), read_only=True))
-SPECS = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, PERIOD, *GRID)
+#: process_period_s, publish_grid, grid_step_m: specs.IRREGULARITY_SPECS
+SPECS = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, *IRREGULARITY_SPECS)
 #: parameters whose change rebuilds the policy (old filters flushed, chainage continued)
 MODEL_PARAMS = frozenset((*(s.name for s in INVERSION_SPECS + VEHICLE_SPECS),
                           *(f.name for f in fields(PolicyOptions))))
@@ -115,7 +105,7 @@ class IrregularityNode(StreamNode):
     parameters are invalid."""
 
     NODE_NAME, SPECS = NODE_NAME, SPECS
-    PERIOD_PARAM = PERIOD.name
+    PERIOD_PARAM = IRREGULARITY_PERIOD.name
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)

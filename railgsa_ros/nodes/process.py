@@ -1,6 +1,8 @@
 """The one node process wrapper: every node's ``run`` is ``run_node(build, args, ...)``.
 
-``run_node`` checks the ``--params-file`` arguments (optional), starts rclpy WITHOUT its signal
+``run_node`` checks ``ROS_DOMAIN_ID`` (``system.env_domain``: a value that is no domain id is
+one line and exit 2, not an rclpy traceback) and the ``--params-file`` arguments (optional),
+starts rclpy WITHOUT its signal
 handlers, builds the node, runs its session and shuts down: the node destroyed, the context
 shut down, exit code 0. Signals: started as a node, ``early_signals`` makes SIGINT/SIGTERM exit 0
 until the node is built; from then on (and, in any other process, from the start) a signal only
@@ -27,6 +29,7 @@ from railgsa_ros.nodes import early_signals
 from railgsa_ros.nodes.params import check_params_files
 from railgsa_ros.nodes.specs import ALL_PARAMETER_NAMES
 from railgsa_ros.playback.signals import stop_on_signals
+from railgsa_ros.system import env_domain
 
 STOP_POLL_S = 0.1  #: a stop request is noticed within this, s
 #: (node, executor with the node, stopped()) -> None: the node's work until stopped or done
@@ -50,7 +53,9 @@ def run_node(build: Callable[[], Any], args: list[str] | None = None, *,
     (default ``sys.argv[1:]``) is checked before rclpy starts (ConfigError naming the file).
     ``stop``: an event that ends the session like a signal (the CLI's). ``close(node)`` runs
     before the node is destroyed, also after an error (the recorder finishes its bag there).
+    ConfigError when ``ROS_DOMAIN_ID`` is set to no domain id (before rclpy reads it).
     """
+    env_domain()
     if params is not None:
         check_params_files(sys.argv[1:] if args is None else args, *params, ALL_PARAMETER_NAMES)
     stop = stop or threading.Event()

@@ -7,6 +7,7 @@
 - NODE_SPECS: the input/output parameters of the nodes (odometry, frame policy, input QoS,
   stuck sensor and backward time limits, idle flush and output pacing) and LOCATION_SPECS
   (line, track, direction, km_origin).
+- IRREGULARITY_SPECS: irregularity_node's own (its process period, the grid topic).
 - UNCERTAINTY_SPECS: uncertainty_node's own (UncertaintyConfig fields and its extras).
 - ALL_PARAMETER_NAMES: every name either node declares (for params files shared with ``/**``).
 """
@@ -18,6 +19,7 @@ from dataclasses import fields
 from typing import Any
 
 from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.grid import DEFAULT_STEP_M
 from railgsa_ros.inverse.policy import REORDER_WINDOW_S
 from railgsa_ros.location import DIRECTIONS
 from railgsa_ros.nodes.params import ParamSpec
@@ -86,6 +88,21 @@ NODE_SPECS = (
               (10.0, 1e6), read_only=True),
     *LOCATION_SPECS,
 )
+#: irregularity_node: batches of about two samples at 1 kHz: a call's fixed cost (core ~85 us
+#: plus decoding, publishing and the reader's wake-up) is several samples' worth; 2 ms keeps the
+#: CPU below the relay's (benchmarks/bench_node_latency.py, docs/nodes.md "CPU against latency")
+IRREGULARITY_PERIOD = ParamSpec(
+    'process_period_s', 0.002, 'IMU samples are handed to the policy in one batch at most this '
+    'often (less CPU per sample, up to this much more latency); 0: as they arrive, s',
+    (0.0, 1.0), read_only=True)
+#: irregularity_node: the profile on the chainage grid as a second topic: off by default (a
+#: second policy with the wider pre-band, about the cost of the first)
+IRREGULARITY_GRID = (
+    ParamSpec('publish_grid', False, 'also publish track/irregularity_grid: the profile on '
+              'chainage multiples of grid_step_m, band-passed on distance', read_only=True),
+    ParamSpec('grid_step_m', DEFAULT_STEP_M, 'chainage step of track/irregularity_grid, m',
+              (0.01, 10.0), read_only=True))
+IRREGULARITY_SPECS = (IRREGULARITY_PERIOD, *IRREGULARITY_GRID)
 UNCERTAINTY_SPECS = (
     *(ParamSpec(f.name, f.default, f.metadata['doc'], f.metadata['bounds'], f.metadata['choices'])
       for f in fields(UncertaintyConfig) if f.name != 'inversion'),
@@ -98,7 +115,8 @@ UNCERTAINTY_SPECS = (
 )
 #: the parameters of irregularity_node and uncertainty_node, and ``autostart``
 ALL_PARAMETER_NAMES = frozenset(s.name for s in (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS,
-                                                  *UNCERTAINTY_SPECS)) | {'autostart'}
+                                                  *IRREGULARITY_SPECS, *UNCERTAINTY_SPECS)
+                                ) | {'autostart'}
 def inversion_config(values: Mapping[str, Any]) -> InversionConfig:
     """The InversionConfig of parameter ``values``; ConfigError with the reason if invalid."""
     return InversionConfig.from_mapping({s.name: values[s.name] for s in INVERSION_SPECS})

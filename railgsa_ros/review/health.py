@@ -210,11 +210,3 @@ class HealthAccumulator:
         return InputHealth(self.imu.stats(), self.odom.stats() if self.odom.count else None,
                            lo, hi, stamp_source, self.gap_factor, self.imu, dict(counters))
 
-
-def input_health(imu_stamps_ns: np.ndarray, odom_stamps_ns: np.ndarray, speed_mps: np.ndarray,
-                 counters: dict[str, int], gap_factor: float = 3.0,
-                 stamp_source: str = 'header') -> InputHealth:
-    """Health of an IMU stream with its odometry (empty arrays when the bag has none)."""
-    acc = HealthAccumulator(gap_factor)
-    acc.push(imu_stamps_ns, None, odom_stamps_ns, speed_mps)
-    return acc.health(counters, stamp_source)
