@@ -159,7 +159,9 @@ class PartitionedFir:
 
     def process(self, x: np.ndarray) -> np.ndarray:
         """Filter a chunk x of shape (C, T) (or (T,) broadcast to every channel)."""
-        x = np.broadcast_to(np.asarray(x, dtype=float), (self.channels, np.shape(x)[-1]))
+        x = np.asarray(x, dtype=float)
+        if x.shape[0] != self.channels or x.ndim != 2:  # (T,) or one channel for all
+            x = np.broadcast_to(x, (self.channels, x.shape[-1]))
         t_len = x.shape[-1]
         if t_len == 0:
             return np.zeros((self.channels, 0))
@@ -182,6 +184,7 @@ class PartitionedFir:
         out = np.empty((self.channels, t_len))
         for a in range(0, t_len, _HEAD_ROWS):
             b = min(a + _HEAD_ROWS, t_len)
-            win = sliding_window_view(seg[:, a:b + h - 1], h, axis=-1)  # (C, b - a, h)
+            win = seg[:, None, a:a + h] if b - a == 1 else \
+                sliding_window_view(seg[:, a:b + h - 1], h, axis=-1)  # (C, b - a, h)
             out[:, a:b] = np.einsum('ctk,ck->ct', win, self._head_taps)
         return out
