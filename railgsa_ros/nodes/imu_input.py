@@ -12,9 +12,16 @@ them: a reader thread waits on them alone and hands everything waiting over as o
 batches instead of falling behind and the 1 kHz stream never wakes the executor. Measured
 cross-process at 1 kHz (docs/nodes.md): an rclpy executor dispatching raw messages to a callback
 that does nothing costs a lifecycle node 25-28 % of a core; this thread, 6 %.
-``period_s`` > 0 hands over at most one batch per period (the batches start ``period_s``
-apart, or back to back when one takes longer); after ``idle_flush_s`` without input,
-``on_idle()`` is called every ``idle_flush_s`` / 2 (at most 0.1 s).
+``period_s`` > 0 lets IMU messages wait for company: the messages taken are handed over once
+``batch`` = round(``period_s`` x ``rate_hz``) IMU messages are in hand or the first of them has
+waited ``period_s`` (a size-or-linger batch, as message brokers batch), or at once when more
+arrived while the last batch was processed; 0 hands over whatever arrived, as it arrives. At
+1 kHz and 2 ms the node works on pairs: the first sample of a pair waits one period, the
+second none, where a fixed 2 ms period made a sample arriving just after a batch started wait
+the full 2 ms. Waiting for a larger batch (uncertainty_node: 50 samples at 1 kHz) the thread
+sleeps while the missing messages cannot have arrived at ``rate_hz`` instead of waking for
+each. After ``idle_flush_s`` without input, ``on_idle()`` is called every ``idle_flush_s`` / 2
+(at most 0.1 s).
 ``convert`` / ``odometry`` decode such batches vectorised (:mod:`imu_conversion`; rclpy's
 deserialiser for other encodings), count and drop malformed messages; every input decision
 (axis, frame policy, speed, noise, quality) is the core's
@@ -99,6 +106,9 @@ class ImuIntake:
         self.counts: Counter[str] = Counter()
         self.depth = int(values['imu_qos_depth'])  #: reader history, messages
         self.period_s = float(period_s)
+        self.rate_hz = float(values['rate_hz'])
+        self.batch = max(1, round(self.period_s * self.rate_hz))  #: IMU messages per batch
+        self._held: tuple[list[bytes], list[bytes]] = ([], [])  # taken, not handed over yet
         self._idle_ns = int(min(0.1, values['idle_flush_s'] / 2) * 1e9)
         self.imu = RawSubscription(node, Imu, 'imu/data', sensor_qos(
             self.depth, values['imu_reliability']))
@@ -122,20 +132,33 @@ class ImuIntake:
             wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self._node.context.handle)
         except Exception:  # the context was shut down (a signal) before the thread ran
             return
+        first = 0.0  # steady time at which the oldest held message was taken, s
         while not self._stopping and self._node.context.ok():  # ok(): no stop() after a signal
             try:
-                self._wait(wait_set, subs, self._idle_ns)
+                imu, odom = self._held
+                if imu or odom:  # wait for the rest of the batch, at most until its deadline
+                    left = first + self.period_s - time.monotonic()
+                    nap = min(left, (self.batch - len(imu) - 1) / self.rate_hz)
+                    if nap > 0:  # the missing messages cannot have arrived yet
+                        self._wait(wait_set, [], int(nap * 1e9))
+                    self._wait(wait_set, subs, max(0, int(left * 1e9)))
+                else:
+                    self._wait(wait_set, subs, self._idle_ns)
                 if self._stopping:
                     return
-                started = time.monotonic()
+                had = bool(imu or odom)
                 imu, odom = self.take(MAX_BATCH)
-                if imu or odom:
+                now = time.monotonic()
+                if not (imu or odom):
+                    self._on_idle()
+                    continue
+                if not had:
+                    first = now
+                if len(imu) >= self.batch or now - first >= self.period_s or len(imu) >= MAX_BATCH:
+                    self._held = ([], [])
                     self._on_input(imu, odom)
                 else:
-                    self._on_idle()
-                rest = self.period_s - (time.monotonic() - started)
-                if rest > 0:
-                    self._wait(wait_set, [], int(rest * 1e9))
+                    self._held = (imu, odom)
             except Exception as exc:  # the node must survive anything; the core is guarded
                 if self._stopping or not self._node.context.ok():
                     return
@@ -155,9 +178,12 @@ class ImuIntake:
             wait_set.wait(timeout_ns)
 
     def take(self, limit: int) -> tuple[list[bytes], list[bytes]]:
-        """Up to ``limit`` waiting IMU messages and every waiting odometry message."""
-        imu = self.imu.take(limit)
-        return imu, [] if self.odom is None else self.odom.take(self.depth)
+        """The messages held for a batch, then up to ``limit`` more waiting IMU messages and
+        every waiting odometry message (the reader thread's, or after ``stop``)."""
+        imu, odom = self._held
+        self._held = ([], [])
+        imu = imu + self.imu.take(limit)
+        return imu, odom + ([] if self.odom is None else self.odom.take(self.depth))
 
     def stop(self) -> None:
         """Stop the reader thread (it finishes the batch in hand); idempotent."""

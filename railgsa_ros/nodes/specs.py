@@ -88,12 +88,13 @@ NODE_SPECS = (
               (10.0, 1e6), read_only=True),
     *LOCATION_SPECS,
 )
-#: irregularity_node: batches of about two samples at 1 kHz: a call's fixed cost (core ~85 us
-#: plus decoding, publishing and the reader's wake-up) is several samples' worth; 2 ms keeps the
-#: CPU below the relay's (benchmarks/bench_node_latency.py, docs/nodes.md "CPU against latency")
+#: irregularity_node: pairs of samples at 1 kHz: a call's fixed cost (core ~95 us plus
+#: decoding, publishing and the reader's wake-up) is several samples' worth; pairs keep the CPU
+#: below the relay's (benchmarks/bench_node_latency.py, docs/nodes.md "CPU against latency")
 IRREGULARITY_PERIOD = ParamSpec(
-    'process_period_s', 0.002, 'IMU samples are handed to the policy in one batch at most this '
-    'often (less CPU per sample, up to this much more latency); 0: as they arrive, s',
+    'process_period_s', 0.002, 'IMU samples wait for company: handed to the policy once '
+    'round(process_period_s x rate_hz) of them are in, or when the first has waited this long '
+    '(less CPU per sample, at most this much more latency); 0: as they arrive, s',
     (0.0, 1.0), read_only=True)
 #: irregularity_node: the profile on the chainage grid as a second topic: off by default (a
 #: second policy with the wider pre-band, about the cost of the first)
@@ -108,7 +109,8 @@ UNCERTAINTY_SPECS = (
       for f in fields(UncertaintyConfig) if f.name != 'inversion'),
     ParamSpec('uncertainty_file', '', 'YAML of uncertain parameters (schema of '
               'config/uncertainty.yaml); empty: Table 3 around the nominal vehicle'),
-    ParamSpec('process_period_s', 0.05, 'buffered IMU samples are processed every this, s',
+    ParamSpec('process_period_s', 0.05, 'IMU samples are processed in batches of '
+              'round(process_period_s x rate_hz), or when the first has waited this long, s',
               (0.001, 1.0)),
     ParamSpec('sensitivity_qos_depth', 10, 'track/sensitivity writer history (RELIABLE)',
               (1, 10_000)),
