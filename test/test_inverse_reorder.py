@@ -100,3 +100,33 @@ def test_window_zero_is_the_arrival_order() -> None:
     buffer = Reorder(0.0, 1.0, 1)
     assert np.array_equal(run(buffer, stamps, [7]), np.arange(500))
     assert buffer.counters['late'] > 0 and buffer.held == 0
+
+
+@pytest.mark.parametrize('sizes', [[1], [2, 5, 1], [3, 1], [64]])
+def test_every_row_keeps_its_columns_with_and_without_covariance(sizes: list[int]) -> None:
+    """Released rows carry their own accel, frame id and covariance whatever the batching (the
+    live path writes pushes into a store behind the held window); a push without a
+    covariance gives its rows zeros (unknown) when released with rows that have one."""
+    n = 900
+    stamps = jittered(n, 8.0, 3)
+    idx = np.arange(n, dtype=float)
+    accel = np.stack([idx, -idx, 2 * idx], axis=1)
+    frames = np.array([f'imu{k % 7}' for k in range(n)], dtype=object)
+    cov = np.tile(idx[:, None] + 1.0, (1, 9))
+    buffer, had = Reorder(0.01, 1.0, 100), np.zeros(n, bool)
+    released, start, k = [], 0, 0
+    while start < n:
+        sl = slice(start, start + sizes[k % len(sizes)])
+        with_cov = (start // 50) % 3 != 0  # runs of pushes without a covariance
+        had[sl] = with_cov
+        released.append(buffer.push(stamps[sl], accel[sl], frames[sl],
+                                    cov[sl] if with_cov else None))
+        start, k = sl.stop, k + 1
+    released.append(buffer.drain())
+    for t, a, f, c in released:
+        j = (stamps.size and a[:, 0]).astype(int)
+        assert np.array_equal(t, stamps[j]) and np.array_equal(a, accel[j])
+        assert np.array_equal(f, frames[j])
+        want = np.where(had[j][:, None], cov[j], 0.0)
+        assert np.array_equal(c, want) if c is not None else not want.any()
+    assert sorted(np.concatenate([r[1][:, 0] for r in released]).astype(int)) == list(range(n))

@@ -649,14 +649,14 @@ class InversionPipeline:
             codes, raised = quality.tolist(), 0
             held = col.item  # a Python float per lookup
 
-            def off(j: int, h: int, vc: float) -> float:
+            def spread(j: int, h: int, vc: float) -> float:
                 """max |v - vc| of the held speeds h samples behind and ahead of index j."""
                 return max(abs(min(max(abs(held(max(j - h, floor))), vmin), vmax) - vc),
                            abs(min(max(abs(held(min(j + h, top))), vmin), vmax) - vc))
             for i, v in enumerate(np.abs(speed).tolist()):
                 j = base + first + i
                 vc = min(max(v, vmin), vmax)
-                if off(j, self._half_width_at(v), vc) + off(j, half, vc) > tol * vc:
+                if spread(j, self._half_width_at(v), vc) + spread(j, half, vc) > tol * vc:
                     raised += codes[i] == _VALID
                     codes[i] = max(codes[i], _DEGRADED)
             self._counters['speed_change'] += raised

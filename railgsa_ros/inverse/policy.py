@@ -811,7 +811,7 @@ class InputPolicy:
                 'across their band window (acceleration, braking), so the time-domain band '
                 'maps wavelengths off the band; the band on distance (--grid) follows the '
                 'speed'))
-        elif self._findings['acceleration'].level != OK:
+        elif (shown := self._findings['acceleration']) is not None and shown.level != OK:
             self._findings['acceleration'] = Finding('acceleration', OK, (
                 f'speed steady across the band windows ({total} outputs DEGRADED by speed '
                 'changes so far)'))
@@ -822,8 +822,8 @@ class InputPolicy:
         self._counts['speed_unknown'] += unknown
         self._counts['reverse'] += reverse
         total, options, v_fixed = self._counts['reverse'], self.options, self.config.speed_mps
-        self._later('speed', lambda: _speed_verdict(options, v_fixed, unknown and not last_known,
-                                                    reverse, total))
+        lost = bool(unknown) and not last_known
+        self._later('speed', lambda: _speed_verdict(options, v_fixed, lost, reverse, total))
 
     def _gravity_finding(self, last: list[float], bad: bool) -> None:
         """The 'gravity' finding from the newest running mean ``last`` (3 m/s^2) and whether

@@ -27,6 +27,8 @@ from railgsa_ros.inverse.sanitize import SMALL
 
 #: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
+#: Columns and the arrival indices (T,) int64
+Store = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]
 _NONE = np.iinfo(np.int64).min
 STORE_ROOM = 4  #: a new backing store holds this many times the samples it starts with
 
@@ -49,7 +51,7 @@ class Reorder:
         self._held_idx = np.zeros(0, np.int64)  # their arrival indices
         # backing arrays (stamps, accel, frames, covariance, arrival) whose rows lo:hi are the
         # held samples (views), None while the held ones are not views of it
-        self._store: tuple[np.ndarray, ...] | None = None
+        self._store: Store | None = None
         self._span = (0, 0)
 
     def configure(self, window_s: float, backward_reset_s: float, cap: int) -> None:
@@ -134,26 +136,23 @@ class Reorder:
         n = idx.size
         lo, hi = self._span
         store = self._store
-        if store is None or (held[3] is None) != (cols[3] is None) or hi + n > store[0].size:
-            kept = _take(held, slice(count, None))
-            size = kept[0].size + n
-            store = (np.empty(STORE_ROOM * size, np.int64), np.empty((STORE_ROOM * size, 3)),
-                     np.empty(STORE_ROOM * size, object),
-                     None if cols[3] is None else np.empty((STORE_ROOM * size, 9)),
-                     np.empty(STORE_ROOM * size, np.int64))
+        with_cov = held[3] is not None or cols[3] is not None  # as _concat joins them
+        if store is None or with_cov != (store[3] is not None) or hi + n > store[0].size:
+            kept = (*_take(held, slice(count, None)), self._held_idx[count:])
+            room = STORE_ROOM * (kept[0].size + n)
+            store = (np.empty(room, np.int64), np.empty((room, 3)), np.empty(room, object),
+                     np.empty((room, 9)) if with_cov else None, np.empty(room, np.int64))
             lo, hi = 0, kept[0].size
-            for dst, src in zip(store, (*kept, self._held_idx[count:]), strict=True):
-                if dst is not None:
-                    dst[:hi] = src
+            _write(store, kept, 0)
             self._store = store
         else:
             lo += count
-        for dst, src in zip(store, (*cols, idx), strict=True):
-            if dst is not None:
-                dst[hi:hi + n] = src
-        self._span = (lo, hi + n)
-        self._held = tuple(None if a is None else a[lo:hi + n] for a in store[:4])
-        self._held_idx = store[4][lo:hi + n]
+        _write(store, (*cols, idx), hi)
+        hi += n
+        self._span = (lo, hi)
+        t, a, f, c, i = store
+        self._held = (t[lo:hi], a[lo:hi], f[lo:hi], None if c is None else c[lo:hi])
+        self._held_idx = i[lo:hi]
 
     def _note(self, behind: np.ndarray, late: np.ndarray) -> None:
         """Count the disorder ``behind`` (ns, newest before minus own stamp) by kind."""
@@ -207,6 +206,15 @@ class Reorder:
         self._held = _take(cols, slice(count, None))
         self._held_idx = idx[count:]
         return _take(cols, slice(0, count))
+
+
+def _write(store: Store, rows: Store, at: int) -> None:
+    """Write ``rows`` into ``store`` from row ``at``; rows without a covariance where the
+    store has one get zeros (unknown, as ``_concat`` fills them)."""
+    end = at + rows[0].shape[0]
+    for dst, src in zip(store, rows, strict=True):
+        if dst is not None:
+            dst[at:end] = 0.0 if src is None else src
 
 
 def _take(cols: Columns, sel: np.ndarray | slice) -> Columns:
