@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from railgsa_ros.inverse.rate import JITTER_TOLERANCE, count_steps
+from railgsa_ros.inverse.rate import JITTER_TOLERANCE, count_blocks, count_steps
 
 PERIOD_NS = 1e6  # 1 kHz nominal
 
@@ -83,3 +83,16 @@ def test_jitter_lost_samples_and_another_rate_are_told_apart(jitter_ms, loss, ra
         assert counted.jitter_s == pytest.approx(jitter_ms * 1e-3, abs=0.03e-3)
         share = counted.jitter_s * rate_hz  # of the period; heavy against the median step's
         assert counted.heavy == (share > JITTER_TOLERANCE) or abs(share - JITTER_TOLERANCE) < 0.01
+
+
+def test_blocks_counted_together_are_counted_as_one_by_one():
+    """count_blocks (the policy's batch of full blocks) gives count_steps's results bit for bit,
+    over every jitter, loss pattern and rate above (steady rows together, the others alone)."""
+    blocks = np.array([_lossy_block(jitter_ms, loss, rate_hz, seed)[0]
+                       for jitter_ms in JITTERS_MS for loss in LOSSES
+                       for rate_hz in (1000.0, 985.0, 800.0) for seed in range(2)])
+    blocks[0, 100] = 0.0  # a repeated stamp and a gap: rows the batch leaves to count_steps
+    blocks[1, 200] = 10 * PERIOD_NS
+    assert count_blocks(blocks, PERIOD_NS, 3.0) == [count_steps(b, PERIOD_NS, 3.0)
+                                                     for b in blocks]
+    assert count_blocks(np.zeros((0, 512)), PERIOD_NS, 3.0) == []

@@ -47,9 +47,15 @@ from railgsa_ros.inverse.mounting import Mounting
 from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality, quality_counts
-from railgsa_ros.inverse.rate import JITTER_TOLERANCE, count_steps
+from railgsa_ros.inverse.rate import JITTER_TOLERANCE, CountedSteps, count_blocks
 from railgsa_ros.inverse.reorder import Reorder
-from railgsa_ros.inverse.sanitize import REASONS, SMALL, SPEED_LIMIT_MPS, frame_mask
+from railgsa_ros.inverse.sanitize import (
+    REASONS,
+    SMALL,
+    SPEED_LIMIT_MPS,
+    frame_mask,
+    text_array,
+)
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
 OK, WARN, ERROR = 0, 1, 2  #: finding levels (diagnostic_msgs/DiagnosticStatus levels)
@@ -187,7 +193,7 @@ class _Held:
         self.stamps = np.zeros(0, np.int64)
         self.accel = np.zeros((0, 3))
         self.vertical = np.zeros(0)  # upward specific force (mounting projection), m/s^2
-        self.frames = np.zeros(0, dtype=object)
+        self.frames = np.zeros(0, dtype=str)
         self.flags = np.zeros(0, np.uint8)  # input quality from gravity and rate checks
         self.arrival = np.zeros(0, np.int64)  # index of the sample since the policy started
 
@@ -354,8 +360,8 @@ class InputPolicy:
         accel = np.array(accel, dtype=float, ndmin=2)
         if accel.shape != (stamps.size, 3):
             raise ConfigError(f'accel: expected shape ({stamps.size}, 3), got {accel.shape}')
-        frames = np.full(stamps.size, self.config.frame_id, dtype=object) \
-            if frame_ids is None else np.asarray(frame_ids, dtype=object)
+        frames = np.full(stamps.size, self.config.frame_id) \
+            if frame_ids is None else text_array(frame_ids)
         cov = None if covariance is None else \
             np.asarray(covariance, dtype=float).reshape(stamps.size, 9)
         before = self._reorder.counters.total()
@@ -539,7 +545,7 @@ class InputPolicy:
 
     def _frame_check(self, frames: np.ndarray) -> None:
         expected = self.config.frame_id
-        if frames.size <= SMALL and all(type(f) is str and f == expected for f in frames):
+        if frames.size <= SMALL and all(isinstance(f, str) and f == expected for f in frames):
             return  # what frame_mask finds, without its conversion to str
         match = frame_mask(frames, expected)
         if match is None or match.all():
@@ -634,10 +640,12 @@ class InputPolicy:
         cum = np.concatenate([[fill], fill + np.cumsum(nonzero)])  # open-block step count
         pool = np.concatenate([self._rate_steps[:fill], steps[nonzero]])
         state = np.full(idx.size, self._rate_state, np.uint8)
-        for b in range(pool.size // RATE_BLOCK):
-            done = int(np.searchsorted(cum[1:], (b + 1) * RATE_BLOCK))  # completing sample
-            state[done + 1:] = self._rate_block(pool[b * RATE_BLOCK:(b + 1) * RATE_BLOCK])
-        rest = pool[pool.size // RATE_BLOCK * RATE_BLOCK:]
+        full = pool.size // RATE_BLOCK * RATE_BLOCK
+        counted = self._count(pool[:full])
+        ends = np.arange(1, len(counted) + 1) * RATE_BLOCK
+        for done, block in zip(np.searchsorted(cum[1:], ends).tolist(), counted, strict=True):
+            state[done + 1:] = self._rate_block(block)  # from the sample after the block's last
+        rest = pool[full:]
         self._rate_steps[:rest.size] = rest
         self._rate_fill = rest.size
         flags[idx] = state
@@ -659,20 +667,24 @@ class InputPolicy:
                 self._rate_steps[self._rate_fill] = step
                 self._rate_fill += 1
                 if self._rate_fill == RATE_BLOCK:
-                    state, self._rate_fill = self._rate_block(self._rate_steps), 0
+                    state, self._rate_fill = self._rate_block(self._count(self._rate_steps)[0]), 0
         self._rate_prev = prev
         self._counts['rate_invalid'] += invalid
         return np.array(flags, np.uint8)
 
-    def _rate_block(self, steps: np.ndarray) -> int:
-        """The verdict on one full block of RATE_BLOCK stamp steps (ns): the 'rate' and
+    def _count(self, steps: np.ndarray) -> list[CountedSteps]:
+        """Each block of RATE_BLOCK stamp steps (ns) of ``steps`` counted (``inverse.rate``)."""
+        return count_blocks(steps.reshape(-1, RATE_BLOCK), 1e9 / self.config.rate_hz,
+                            self.config.gap_factor)
+
+    def _rate_block(self, counted: CountedSteps) -> int:
+        """The verdict on one full block of RATE_BLOCK stamp steps (``counted``): the 'rate' and
         'jitter' findings; returns the quality code of the samples after it: INVALID at another
         rate, DEGRADED after samples lost without a gap (the record closes up around them: its
         time axis is compressed), counted as ``lost``, and under stamp jitter beyond
         JITTER_TOLERANCE periods (stamps reorder: re-ordered, their times wrong; lost ones
         counted while a period locks), counted as ``jitter`` (:mod:`railgsa_ros.inverse.rate`)."""
         cfg = self.config
-        counted = count_steps(steps, 1e9 / cfg.rate_hz, cfg.gap_factor)
         measured = counted.rate_hz  # counted per stamp: robust to jitter and lost samples
         ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
         lost = counted.lost if ok and counted.lost_significant else 0

@@ -25,7 +25,7 @@ import numpy as np
 
 from railgsa_ros.inverse.sanitize import SMALL
 
-#: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) object, covariance (T, 9) or None
+#: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) str or object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 #: Columns and the arrival indices (T,) int64
 Store = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]

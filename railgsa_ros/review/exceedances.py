@@ -99,11 +99,12 @@ class ExceedanceTracker:
         u = np.asarray(u_m, dtype=float)
         thresholds = self.limits.at(speed_mps)
         near, far = magnitudes(u, lower_m, upper_m)
-        lvl_c, lvl_near, lvl_far = (levels(m, thresholds) for m in (np.abs(u), near, far))
-        sel = np.flatnonzero(lvl_far > 0)
+        lvl_far = levels(far, thresholds)
+        sel = np.flatnonzero(lvl_far > 0)  # near <= |u| <= far: elsewhere nothing passes
+        lvl_c, lvl_near = (levels(m[sel], thresholds[sel]) for m in (np.abs(u), near))
         cols = {'index': self._seen + sel, 'chainage': np.asarray(chainage_m, float)[sel],
                 'stamp': np.asarray(stamps_ns)[sel], 'u': u[sel], 'far': far[sel],
-                'lvl_c': lvl_c[sel], 'lvl_near': lvl_near[sel], 'lvl_far': lvl_far[sel],
+                'lvl_c': lvl_c, 'lvl_near': lvl_near, 'lvl_far': lvl_far[sel],
                 'lower': (u if lower_m is None else np.asarray(lower_m, float))[sel],
                 'upper': (u if upper_m is None else np.asarray(upper_m, float))[sel],
                 'speed': np.asarray(speed_mps, float)[sel],
