@@ -83,6 +83,15 @@ class Reference:
         sign = 1.0 if self.direction == 'increasing' else -1.0
         return self.km_origin + sign * np.asarray(chainage_m, dtype=float) / 1e3
 
+    def label(self, chainage_m: float) -> str:
+        """'km 12.345 (345.0 m)': the km-post of a chainage (m), with the chainage."""
+        return f'km {float(self.km(chainage_m)):.3f} ({chainage_m:.1f} m)'
+
+    def chainage(self, km: np.ndarray | float) -> np.ndarray:
+        """Chainage (m) of km-posts (km): the inverse of ``km``."""
+        sign = 1.0 if self.direction == 'increasing' else -1.0
+        return sign * (np.asarray(km, dtype=float) - self.km_origin) * 1e3
+
     def values(self, chainage_m: float) -> dict[str, object]:
         """line, track, direction, km_origin and a chainage (m) with its km-post (km): what
         the live nodes report on /diagnostics for their newest output."""

@@ -72,12 +72,13 @@ def closeup_centres(review: Review, count: int = 4) -> tuple[list[float], list[s
     for e in ranked:
         if len(picked) < count and all(abs(e.peak_m - p.peak_m) > ZOOM_M for p in picked):
             picked.append(e)
+    where = review.location.reference.label
     if picked:
         return ([e.peak_m for e in picked],
-                [f'{e.level} ({e.confidence}) at {e.peak_m:.1f} m: {e.peak_u_m * 1e3:+.2f} mm'
+                [f'{e.level} ({e.confidence}) at {where(e.peak_m)}: {e.peak_u_m * 1e3:+.2f} mm'
                  for e in picked])
     peak = review.run.peak
-    return [peak.chainage_m], [f'largest |u| at {peak.chainage_m:.1f} m: '
+    return [peak.chainage_m], [f'largest |u| at {where(peak.chainage_m)}: '
                                f'{peak.value_m * 1e3:+.2f} mm (no exceedance)']
 
 
@@ -86,11 +87,12 @@ def draw_figures(review: Review, folder: Path) -> dict[str, str]:
     run, q = review.run, (review.config.lower_quantile, review.config.upper_quantile)
     made = {
         'overview': figures.plot_overview(folder / 'overview.png', run.grid, review.limits,
-                                          review.exceedances, q),
+                                          review.exceedances, q, review.location.reference),
         'closeups': figures.plot_closeups(folder / 'closeups.png', run.grid, review.limits,
                                           *closeup_centres(review), q),
         'sections': figures.plot_sections(folder / 'sections.png', review.sections,
-                                          review.limits, review.truth_sections),
+                                          review.limits, review.location.reference,
+                                          review.truth_sections),
         'health': figures.plot_health(folder / 'health.png', review.health),
     }
     if run.windows:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from railgsa_ros.location import Reference
 from railgsa_ros.review.exceedances import Exceedance
 from railgsa_ros.review.grid import Grid
 from railgsa_ros.review.health import InputHealth
@@ -74,6 +75,14 @@ def envelope(x: np.ndarray, *ys: np.ndarray, bins: int = PIXELS) -> tuple[np.nda
     return tuple(out)
 
 
+def _km_axis(ax, reference: Reference) -> None:
+    """The km-posts of the chainage on the top edge (the km of the report's tables and
+    defects; the chainage in m stays below)."""
+    top = ax.secondary_xaxis('top', functions=(reference.km, reference.chainage))
+    top.set_xlabel(f'km-post [km] ({reference.direction})', fontsize=8)
+    top.tick_params(labelsize=8)
+
+
 def _signal(ax, x: np.ndarray, y: np.ndarray, scale: float = 1.0, **kw) -> None:
     """A line of y * scale, or its envelope as a filled area when it is long."""
     xe, lo, hi = envelope(x, y)
@@ -130,10 +139,10 @@ def _band_label(quantiles: tuple[float, float]) -> str:
 
 
 def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exceedance],
-                  quantiles: tuple[float, float]) -> Path:
-    """Irregularity over chainage (the run's 0.25 m grid) with the band, the limits and the
-    exceedances (at their exact peaks); speed below."""
-    fig = _figure(11.0, 5.0, rows=2)
+                  quantiles: tuple[float, float], reference: Reference) -> Path:
+    """Irregularity over chainage (the run's 0.25 m grid, km-posts on top) with the band,
+    the limits and the exceedances (at their exact peaks); speed below."""
+    fig = _figure(11.0, 5.4, rows=2, top=0.55)
     ax, ax_v = fig.subplots(2, 1, sharex=True, height_ratios=(5, 1))
     x = grid.x_m
     if grid.has_band:
@@ -154,6 +163,7 @@ def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exce
     ax.set_ylabel(f'irregularity {limits.band.upper()} [mm]')
     ax.grid(alpha=0.3)
     ax.legend(loc='upper right', fontsize=8, ncol=4)
+    _km_axis(ax, reference)
     _signal(ax_v, x, grid.speed_mps, 3.6, color='0.3')
     ax_v.set_ylabel('speed [km/h]')
     ax_v.set_xlabel('chainage [m]')
@@ -184,10 +194,11 @@ def plot_closeups(path: Path, grid: Grid, limits: Limits, centres: Sequence[floa
     return _save(fig, path)
 
 
-def plot_sections(path: Path, sections: Sections, limits: Limits,
+def plot_sections(path: Path, sections: Sections, limits: Limits, reference: Reference,
                   truth: Sections | None = None) -> Path:
-    """SD per section as bars against the EN 13848-5 alert range of each section's class."""
-    fig = _figure(11.0, 3.6, right=0.35)
+    """SD per section as bars against the EN 13848-5 alert range of each section's class
+    (km-posts on top)."""
+    fig = _figure(11.0, 4.0, top=0.55, right=0.35)
     ax = fig.subplots()
     if len(sections) == 0:  # a run shorter than half a section
         ax.text(0.5, 0.5, f'no {sections.length_m:g} m section covered by half or more',
@@ -216,6 +227,7 @@ def plot_sections(path: Path, sections: Sections, limits: Limits,
     ax.set_ylabel(f'SD {limits.band.upper()} per {sections.length_m:g} m [mm]')
     ax.grid(alpha=0.3, axis='y')
     ax.legend(fontsize=8)
+    _km_axis(ax, reference)
     return _save(fig, path)
 
 

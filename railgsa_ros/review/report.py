@@ -70,11 +70,6 @@ def _speed_classes(class_counts: np.ndarray) -> str:
                      ' %)' for i in order)
 
 
-def _km(review: Review, chainage_m: float) -> str:
-    """'km 12.345 (345.0 m)': the km-post of a chainage, with the chainage."""
-    return f'km {float(review.location.reference.km(chainage_m)):.3f} ({chainage_m:.1f} m)'
-
-
 def _location(review: Review) -> str:
     """Line, track, km range and direction, GNSS and the odometry scale (escaped HTML)."""
     loc, run = review.location, review.run
@@ -96,7 +91,7 @@ def _summary(review: Review) -> str:
     peak = run.peak
     worst_level = next((e for e in sorted(review.exceedances, key=lambda e: -e.severity)
                         if e.start_m <= peak.chainage_m <= e.end_m), None)
-    worst = f'{peak.value_m * MM:+.2f} mm at {_km(review, peak.chainage_m)}'
+    worst = f'{peak.value_m * MM:+.2f} mm at {review.location.reference.label(peak.chainage_m)}'
     if worst_level is not None:
         worst += f' (<span class={worst_level.level}>{worst_level.level}</span>)'
     exc = '<br>'.join(f'<span class={level}>{level}</span> {text}'
@@ -118,7 +113,7 @@ def _summary(review: Review) -> str:
         cards.append(_card('uncertainty (band width)',
                            f'median {np.median(width):.2f} mm (0.25 m grid), max '
                            f'{run.widest.value_m * MM:.2f} mm at '
-                           f'{_km(review, run.widest.chainage_m)}'))
+                           f'{review.location.reference.label(run.widest.chainage_m)}'))
     cards.append(_card('input', f'{health.imu.count} IMU samples at {health.imu.rate_hz:.0f} Hz, '
                                 f'{health.rejected_total} rejected, {health.imu.gaps} gaps'))
     cards.append(_card('location', _location(review)))
