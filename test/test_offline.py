@@ -235,8 +235,11 @@ def test_gnss_corrects_a_wheel_diameter_error_and_places_defects_within_1_m(tmp_
     truth_e = 2000.0 * (np.sin(angle) - np.sin(heading))
     truth_n = 2000.0 * (np.cos(heading) - np.cos(angle))
     assert np.all(np.hypot(east - truth_e, north - truth_n) < 2.0)
-    km = review.location.reference.km(s)
+    ref = review.location.reference
+    km = ref.km(s)
     assert km == pytest.approx(12.5 - s / 1e3)
+    assert ref.chainage(km) == pytest.approx(s)  # the figures' km axis maps back
+    assert ref.label(1104.0) == 'km 11.396 (1104.0 m)'
 
 
 def test_simulated_gnss_and_wheel_error_put_defects_within_1_m_of_the_truth(tmp_path: Path
