@@ -350,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
                         choices=['irregularity_node', 'uncertainty_node'],
                         help='the nodes measured (default: both)')
     parser.add_argument('--process-period', type=float,
-                        help="irregularity_node's process_period_s (default: the node's, 2 ms: pairs at 1 kHz)")
+                        help="irregularity_node's process_period_s (default: the node's, "
+                        '2 ms: pairs at 1 kHz)')
     parser.add_argument('--rate', type=float, default=1000.0, help='(internal) IMU rate, Hz')
     parser.add_argument('--out', help='(internal) directory for the roles\' results')
     parser.add_argument('--subject', choices=sorted(SUBJECTS), default='irregularity_node',
