@@ -137,11 +137,12 @@ class ImuIntake:
             try:
                 imu, odom = self._held
                 if imu or odom:  # wait for the rest of the batch, at most until its deadline
-                    left = first + self.period_s - time.monotonic()
-                    nap = min(left, (self.batch - len(imu) - 1) / self.rate_hz)
+                    deadline = first + self.period_s
+                    nap = min(deadline - time.monotonic(),
+                              (self.batch - len(imu) - 1) / self.rate_hz)
                     if nap > 0:  # the missing messages cannot have arrived yet
                         self._wait(wait_set, [], int(nap * 1e9))
-                    self._wait(wait_set, subs, max(0, int(left * 1e9)))
+                    self._wait(wait_set, subs, max(0, int((deadline - time.monotonic()) * 1e9)))
                 else:
                     self._wait(wait_set, subs, self._idle_ns)
                 if self._stopping:
