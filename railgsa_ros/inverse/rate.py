@@ -84,14 +84,10 @@ def count_steps(steps_ns: np.ndarray, period_ns: float, gap_factor: float) -> Co
     if s.size == 0:
         return CountedSteps(1e9 / float(np.median(steps[steps > 0])), 0, 0)
     period = float(np.median(s))
-    n = np.rint(s / period)
-    short = s[s < 2 * period]
-    jitter = MAD_STD / np.sqrt(2.0) * float(np.median(np.abs(short - np.median(short))))
+    jitter = float(_jitter(s[s < 2 * period]))
     if jitter <= SMOOTH * period:
-        counted = int(n.sum())
-        between = int(np.count_nonzero(np.abs(s / period - n) > BETWEEN))
-        return CountedSteps(1e9 * counted / float(s.sum()), counted - s.size, between,
-                            jitter * 1e-9)
+        rate, counted, off = _rounded(s, np.asarray(period))
+        return CountedSteps(float(rate), int(counted) - s.size, int(off), jitter * 1e-9)
     near = steps[(steps != 0) & (np.abs(steps) <= gap_factor * period_ns)]
     t = np.concatenate([[0.0], np.cumsum(near)])
     counts = _lock(t, period)
@@ -116,17 +112,31 @@ def count_blocks(blocks_ns: np.ndarray, period_ns: float, gap_factor: float
     s, plain_rows = steps[plain], np.flatnonzero(plain)
     if s.size:  # the smooth branch of count_steps, where short is s itself
         period = np.median(s, axis=1)
-        jitter = MAD_STD / np.sqrt(2.0) * np.median(np.abs(s - period[:, None]), axis=1)
-        n = np.rint(s / period[:, None])
+        jitter = _jitter(s)
         smooth = np.all(s < 2 * period[:, None], axis=1) & (jitter <= SMOOTH * period)
-        counted = n.sum(axis=1).astype(np.int64)
-        between = np.count_nonzero(np.abs(s / period[:, None] - n) > BETWEEN, axis=1)
-        rate = 1e9 * counted / s.sum(axis=1)
+        rate, counted, between = _rounded(s, period)
         for k in np.flatnonzero(smooth):
             out[plain_rows[k]] = CountedSteps(float(rate[k]), int(counted[k]) - s.shape[1],
                                               int(between[k]), float(jitter[k]) * 1e-9)
     return [c if c is not None else count_steps(row, period_ns, gap_factor)
             for c, row in zip(out, steps, strict=True)]
+
+
+def _jitter(short: np.ndarray) -> np.ndarray:
+    """Robust std of the stamp errors (ns) from steps (..., S) shorter than two periods: a step
+    is the difference of two errors, hence the sqrt(2)."""
+    median = np.median(short, axis=-1, keepdims=True)
+    return MAD_STD / np.sqrt(2.0) * np.median(np.abs(short - median), axis=-1)
+
+
+def _rounded(s: np.ndarray, period: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each step (..., S) rounded to whole periods (...): the rate (Hz), the periods counted
+    and the steps more than BETWEEN periods off a whole count."""
+    ratio = s / period[..., None]
+    n = np.rint(ratio)
+    counted = n.sum(axis=-1)
+    between = np.count_nonzero(np.abs(ratio - n) > BETWEEN, axis=-1)
+    return 1e9 * counted / s.sum(axis=-1), counted, between
 
 
 def _lock(t: np.ndarray, period: float) -> np.ndarray | None:
