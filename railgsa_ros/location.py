@@ -78,10 +78,14 @@ class Reference:
         if not np.isfinite(self.km_origin):
             raise ConfigError(f'km_origin: expected a finite km-post, got {self.km_origin!r}')
 
+    @property
+    def _sign(self) -> float:
+        """+1 where the km-posts increase along the run, -1 where they decrease."""
+        return 1.0 if self.direction == 'increasing' else -1.0
+
     def km(self, chainage_m: np.ndarray | float) -> np.ndarray:
         """km-post (km) of chainages (m)."""
-        sign = 1.0 if self.direction == 'increasing' else -1.0
-        return self.km_origin + sign * np.asarray(chainage_m, dtype=float) / 1e3
+        return self.km_origin + self._sign * np.asarray(chainage_m, dtype=float) / 1e3
 
     def label(self, chainage_m: float) -> str:
         """'km 12.345 (345.0 m)': the km-post of a chainage (m), with the chainage."""
@@ -89,8 +93,7 @@ class Reference:
 
     def chainage(self, km: np.ndarray | float) -> np.ndarray:
         """Chainage (m) of km-posts (km): the inverse of ``km``."""
-        sign = 1.0 if self.direction == 'increasing' else -1.0
-        return sign * (np.asarray(km, dtype=float) - self.km_origin) * 1e3
+        return self._sign * (np.asarray(km, dtype=float) - self.km_origin) * 1e3
 
     def values(self, chainage_m: float) -> dict[str, object]:
         """line, track, direction, km_origin and a chainage (m) with its km-post (km): what
