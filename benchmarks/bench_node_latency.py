@@ -27,8 +27,13 @@ run.
 Prints a table with the node/relay ratios and the issue's targets: irregularity_node CPU <=
 relay, uncertainty_node CPU <= 1.5x relay at 1 kHz, p99 <= relay's, no loss at 4 kHz.
 
+``--core delay-line`` measures the shell's floor instead: irregularity_node with its core (the
+input policy and the filters) replaced by a delay line that returns each sample W samples
+later, so that everything else (intake thread, decoding, lock, pacing, encoding, publishing,
+diagnostics) runs as in the node; the targets are not checked then.
+
 Usage: python benchmarks/bench_node_latency.py [--duration 20] [--rates 1000 4000]
-       [--nodes irregularity_node] [--process-period 0.005]
+       [--nodes irregularity_node] [--process-period 0.005] [--core delay-line]
 """
 
 from __future__ import annotations
@@ -82,6 +87,33 @@ def _acceleration(n: int, rate_hz: float) -> np.ndarray:
     u = sum(1e-3 * np.sin(2 * np.pi * x / wl + ph) for wl, ph in ((5.0, 0.3), (11.0, 1.0),
                                                                    (23.0, 2.0)))
     return simulate(u, 1.0 / rate_hz, VehicleParams())[0] + 9.80665
+
+
+def role_shell(ros_args: list[str]) -> int:
+    """irregularity_node with a delay line for its core (``--core delay-line``): each IMU
+    sample comes out, as an output of zeros at the configured speed, once W = the default
+    re-order window x rate_hz newer samples arrived (the policy's stamp hold; its band delay
+    is 0: the filters are never built)."""
+    from collections import deque
+
+    from railgsa_ros.inverse.pipeline import Output
+    from railgsa_ros.nodes.imu_conversion import ImuBatch
+    from railgsa_ros.nodes.irregularity_node import IrregularityNode
+    from railgsa_ros.nodes.lifecycle import run
+
+    class DelayLineNode(IrregularityNode):
+        def core_imu(self, batch: ImuBatch | None) -> Output | None:
+            if batch is None:
+                return None
+            line = self.__dict__.setdefault('_line', deque())
+            line.extend(batch.stamps_ns.tolist())
+            count = len(line) - round(REORDER_WINDOW_S * self._values['rate_hz'])
+            stamps = np.array([line.popleft() for _ in range(max(0, count))], np.int64)
+            zeros = np.zeros(stamps.size)
+            return Output(stamps, zeros, zeros, np.zeros(stamps.size, np.uint8),
+                          zeros + self._values['speed_mps'])
+
+    return run(DelayLineNode, ros_args)
 
 
 def _spin_until_signal(node: object) -> None:
@@ -224,12 +256,14 @@ def _latencies(pub: dict, rec: dict, delay: int) -> tuple[np.ndarray, int]:
 
 
 def _subject_command(subject: str, me: list[str], common: list[str], rate: float,
-                     period_s: float | None) -> list[str]:
+                     period_s: float | None, core: str) -> list[str]:
     if subject == 'relay':
         return [*me, 'relay', *common]
     period = [] if period_s is None or subject != 'irregularity_node' else \
         ['-p', f'process_period_s:={period_s!r}']
-    return [sys.executable, '-m', f'railgsa_ros.nodes.{subject}', '--ros-args',
+    node = [*me, 'shell'] if core == 'delay-line' else \
+        [sys.executable, '-m', f'railgsa_ros.nodes.{subject}']
+    return [*node, '--ros-args',
             '-p', f'speed_mps:={SPEED_MPS}', '-p', 'use_odom:=false', '-p', f'rate_hz:={rate:g}',
             '-p', f'imu_qos_depth:={history_depth(rate)}',
             '-p', f'output_qos_depth:={history_depth(rate)}', *period]
@@ -242,7 +276,7 @@ def _summary(lat: np.ndarray, lost: int, cpu: float, delay: int, code: object) -
 
 
 def measure(node: str, rate: float, duration: float, domain: int,
-            period_s: float | None = None) -> dict[str, dict]:
+            period_s: float | None = None, core: str = 'inversion') -> dict[str, dict]:
     """One node side by side with the relay at one rate: per process CPU %, latencies, lost,
     band delay, exit code."""
     env = _ros_env(domain)
@@ -251,7 +285,8 @@ def measure(node: str, rate: float, duration: float, domain: int,
         common = ['--out', tmp, '--duration', str(duration), '--rate', str(rate),
                   '--subject', node]
         receiver = subprocess.Popen([*me, 'receive', *common], env=env)
-        procs = {s: subprocess.Popen(_subject_command(s, me, common, rate, period_s), env=env)
+        procs = {s: subprocess.Popen(_subject_command(s, me, common, rate, period_s, core),
+                                     env=env)
                  for s in ('relay', node)}
         publisher = subprocess.Popen([*me, 'publish', *common], env=env)
         while not Path(tmp, 'started').exists() and publisher.poll() is None:
@@ -286,9 +321,10 @@ def measure(node: str, rate: float, duration: float, domain: int,
     return out
 
 
-def report(rows: dict[tuple[float, str], dict], load: tuple[float, float]) -> bool:
+def report(rows: dict[tuple[float, str], dict], load: tuple[float, float],
+           core: str = 'inversion') -> bool:
     """Print the table (each node against the relay of its own run) and the targets; whether
-    every target was met."""
+    every target was met (``core`` 'delay-line': the shell's floor, no targets)."""
     print(f'\nload average before / after: {load[0]:.1f} / {load[1]:.1f} (2 shared cores)')
     print('| rate Hz | process | CPU % of a core | p50 ms | p99 ms | max ms | lost | '
           'CPU / relay | p99 / relay |')
@@ -296,10 +332,14 @@ def report(rows: dict[tuple[float, str], dict], load: tuple[float, float]) -> bo
     for (rate, node), pair in rows.items():
         base = pair['relay']
         for subject, r in (('relay', base), (node, pair[node])):
-            label = f'relay (beside {node})' if subject == 'relay' else node
+            label = f'relay (beside {node})' if subject == 'relay' else \
+                node if core == 'inversion' else f'{node} with a {core} core'
             print(f'| {rate:g} | {label} | {r["cpu"]:.1f} | {r["p50"]:.2f} | {r["p99"]:.2f} | '
                   f'{r["max"]:.1f} | {r["lost"]} | {r["cpu"] / base["cpu"]:.2f} | '
                   f'{r["p99"] / base["p99"]:.2f} |')
+    if core != 'inversion':
+        print(f'(the node\'s core replaced by a {core}: the shell\'s floor, no targets)')
+        return True
     checks = []
     rates = sorted({rate for rate, _ in rows})
     nodes = {node for _, node in rows}
@@ -328,12 +368,12 @@ def drive(args: argparse.Namespace) -> int:
     for rate in args.rates:
         for node in args.nodes:
             rows[(rate, node)] = pair = measure(node, rate, args.duration, domain,
-                                                args.process_period)
+                                                args.process_period, args.core)
             for subject, r in pair.items():
                 print(f'{subject} at {rate:g} Hz: CPU {r["cpu"]:.1f} %, p50 {r["p50"]:.2f} ms, '
                       f'p99 {r["p99"]:.2f} ms, lost {r["lost"]}, D + W {r["delay"]}, '
                       f'exit {r["exit"]}', flush=True)
-    report(rows, (load0, os.getloadavg()[0]))
+    report(rows, (load0, os.getloadavg()[0]), args.core)
     return 0
 
 
@@ -352,11 +392,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--process-period', type=float,
                         help="irregularity_node's process_period_s (default: the node's, "
                         '2 ms: pairs at 1 kHz)')
+    parser.add_argument('--core', choices=['inversion', 'delay-line'], default='inversion',
+                        help="irregularity_node's core: the inversion (default), or a delay "
+                        "line that returns each sample W later (the shell's floor)")
     parser.add_argument('--rate', type=float, default=1000.0, help='(internal) IMU rate, Hz')
     parser.add_argument('--out', help='(internal) directory for the roles\' results')
     parser.add_argument('--subject', choices=sorted(SUBJECTS), default='irregularity_node',
                         help='(internal) the node measured beside the relay')
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ['shell']:  # a node process: its arguments are ROS arguments
+        return role_shell(argv)
     args = parser.parse_args(argv)
+    if args.core != 'inversion' and 'uncertainty_node' in args.nodes:
+        parser.error('--core delay-line replaces irregularity_node\'s core: add --nodes '
+                     'irregularity_node')
     if args.role == 'drive' and args.duration <= 10.0:
         parser.error('--duration must exceed 10 s: the nodes emit nothing during their band '
                      'delay')
