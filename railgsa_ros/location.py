@@ -181,7 +181,9 @@ def from_local(east: np.ndarray, north: np.ndarray,
 class OdometryDistance:
     """Odometry chainage (m) at stamps: the held odometry speed (newest sample at or before)
     integrated over the odometry stamps, streamed in log-time order. Query stamps wait until
-    the odometry has passed them (or the end)."""
+    the odometry has passed them (or the end): ask before adding the odometry that passes
+    them (a stamp before the odometry added so far is extrapolated back from its newest
+    sample)."""
 
     def __init__(self) -> None:
         self._t: int | None = None  # last odometry stamp, its speed and chainage there
@@ -294,19 +296,22 @@ def gnss_pass(bag: Path, odom_topic: str, gnss_topic: str, start_ns: int,
     """Read the odometry and the fixes of a bag (no IMU) and locate the run; a Location
     without track (scale 1) when the bag has no usable fix or no odometry."""
     odometry = OdometryDistance()
+    # every stamp is asked before the odometry that passes it is added: ``add`` answers it
+    # from the samples around it (asked after, it was answered from the batch's last sample,
+    # extrapolated back with the speed there: wrong wherever the speed changed)
+    odometry.ask(np.array([start_ns]), np.array([-1]))
     fixes: list[GnssFixes] = []
     seen = 0
     for batch in iter_topics(bag, {odom_topic: ODOMETRY.msgtype, gnss_topic: NAV_SAT_FIX}):
-        odom = batch.get(odom_topic)
-        if isinstance(odom, TopicData):
-            odometry.add(odom.stamps_ns, odom.values[:, ODOMETRY_FIELDS['twist.twist.linear']
-                                                     .start])
         gnss = batch.get(gnss_topic)
         if isinstance(gnss, GnssFixes) and len(gnss):
             odometry.ask(gnss.stamps_ns, seen + np.arange(len(gnss)))
             fixes.append(gnss)
             seen += len(gnss)
-    odometry.ask(np.array([start_ns]), np.array([-1]))
+        odom = batch.get(odom_topic)
+        if isinstance(odom, TopicData):
+            odometry.add(odom.stamps_ns, odom.values[:, ODOMETRY_FIELDS['twist.twist.linear']
+                                                     .start])
     ids, chainage = odometry.result()
     fix = GnssFixes.concat(fixes)
     if len(fix) == 0 or not odometry.started:

@@ -262,6 +262,32 @@ def test_simulated_gnss_and_wheel_error_put_defects_within_1_m_of_the_truth(tmp_
     assert np.all(np.hypot(east - true_e, north - true_n) < 2.0)
 
 
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_gnss_scale_and_positions_hold_when_the_train_brakes_to_a_stop(tmp_path: Path,
+                                                                        storage: str) -> None:
+    """Each fix is placed on the odometry chainage at its own stamp whatever the reader's
+    batches (a sqlite3 bag is read in one: fixes were placed from the run's last odometry
+    sample, at standstill, which gave a scale of 1.54 or no track at all)."""
+    from railgsa_ros.geo import default_line
+    from railgsa_ros.location import gnss_pass
+
+    bag = tmp_path / 'brake'
+    assert main(['simulate', '--out', str(bag), '--speed-profile',
+                 'cruise:25:20s,brake:25-0:20s,stop:5s', '--odom-scale-error', '0.004',
+                 '--gnss', '--seed', '3', '--storage', storage]) == 0
+    start = int(read_imu(bag).stamps_ns[0])
+    location = gnss_pass(bag, '/odom', '/gnss/fix', start, Reference())
+    scale = location.scale
+    assert scale.value == pytest.approx(1 / 1.004, abs=max(3 * scale.std, 5e-4))
+    ground = np.array([100.0, 400.0, 700.0])  # m from the start (the run covers 750 m)
+    lat, lon = location.lat_lon(ground)
+    true_lat, true_lon = default_line(750.0).position(ground)
+    origin = (float(true_lat[0]), float(true_lon[0]))
+    east, north = to_local(lat, lon, origin)
+    true_e, true_n = to_local(true_lat, true_lon, origin)
+    assert np.all(np.hypot(east - true_e, north - true_n) < 3.0)
+
+
 def test_invert_csv_has_km_and_positions_and_the_corrected_chainage(tmp_path: Path,
                                                                     capsys) -> None:
     from railgsa_ros.geo import default_line
