@@ -221,3 +221,21 @@ def test_config_validation_and_params_file(tmp_path, monkeypatch):
                     "    fir_tolerance: '2e-6'\n")
     cfg = load_config(path)
     assert cfg.method == 'kalman' and cfg.fir_tolerance == 2e-6
+
+
+@pytest.mark.parametrize('rate_hz', [100.0, 200.0, 400.0, 1000.0])
+def test_constant_speed_raises_no_output_for_a_speed_change_up_to_the_flush(rate_hz):
+    """The end pad of a flush has no speed: reading its zeros as a stop made the last
+    seconds before the INVALID tail DEGRADED at 200 Hz (603 outputs of a 60 s run)."""
+    dt = 1.0 / rate_hz
+    t = np.arange(0.0, 30.0, dt)
+    x, u = make_profile('german-low', 20.0 * t[-1] + 10, 0.01, seed=2)
+    a_s, _ = simulate(np.interp(20.0 * t, x, u), dt, NOMINAL)
+    pipe = InversionPipeline(InversionConfig(rate_hz=rate_hz, speed_mps=20.0, frame_id=''))
+    stamps = np.round(t * 1e9).astype(np.int64)
+    outs = [pipe.push(stamps, a_s + G), pipe.flush()]
+    quality = np.concatenate([o.quality for o in outs])
+    assert quality.size == t.size
+    assert pipe.counters.get('speed_change', 0) == 0
+    assert not np.any(quality == pipeline.Quality.DEGRADED)
+    assert np.any(quality == pipeline.Quality.VALID)

@@ -644,7 +644,9 @@ class InversionPipeline:
         half = self.switch_period // 2
         col, lo, hi = self._meta.speeds
         base = lo - self._meta_start  # column index of segment index 0 (may be < 0)
-        floor, top = max(base, 0), hi - 1  # the oldest and newest readable samples
+        # the oldest and newest readable samples (the end pad has no speed: its zeros read as
+        # a stop made outputs near a flush DEGRADED where the reach outran the INVALID tail)
+        floor, top = max(base, 0), min(hi - 1, base + int(self._last_real))
         if quality.size <= SMALL:  # per sample, in Python
             codes, raised = quality.tolist(), 0
             held = col.item  # a Python float per lookup
