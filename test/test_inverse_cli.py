@@ -107,6 +107,15 @@ def test_errors_name_the_file(bag, tmp_path, capsys):
     assert not (tmp_path / 'x.csv').exists()
 
 
+def test_relative_topic_names_are_in_the_root_namespace(bag, tmp_path):
+    """A bag holds fully qualified names: imu/data and odom mean /imu/data and /odom."""
+    path, _ = bag
+    for name, topics in (('abs.csv', []), ('rel.csv', ['--imu-topic', 'imu/data',
+                                                       '--odom-topic', 'odom'])):
+        assert main(['invert', str(path), '--csv', str(tmp_path / name), *topics]) == 0
+    assert (tmp_path / 'rel.csv').read_bytes() == (tmp_path / 'abs.csv').read_bytes()
+
+
 def test_no_odometry_and_no_speed_exits_2_with_one_line(bag, tmp_path, capsys):
     path, _ = bag
     assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), '--odom-topic',

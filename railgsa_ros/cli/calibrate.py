@@ -14,6 +14,8 @@ import argparse
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from railgsa_ros.cli.review import add_topic_options
+
     p = subparsers.add_parser('calibrate', help='vehicle parameters from a reference run',
                               description=__doc__.splitlines()[0])
     p.add_argument('bag', help='rosbag2 bag (directory or file) of the run')
@@ -33,8 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         'is measured against: give the file the bands run with; default: '
                         'the node defaults)')
     p.add_argument('--speed', type=float, help='constant speed in m/s, overriding odometry')
-    p.add_argument('--imu-topic', default='/imu/data', metavar='T')
-    p.add_argument('--odom-topic', default='/odom', metavar='T')
+    add_topic_options(p)
     p.add_argument('--out-vehicle', required=True, metavar='YAML')
     p.add_argument('--out-uncertainty', required=True, metavar='YAML')
     p.add_argument('--overwrite', action='store_true')

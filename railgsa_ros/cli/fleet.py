@@ -12,7 +12,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from railgsa_ros.cli.review import add_location_options
+from railgsa_ros.cli.review import add_location_options, add_topic_options
 
 if TYPE_CHECKING:
     from railgsa_ros.fleet.ingest import Outcome
@@ -52,8 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ing.add_argument('--vehicle', metavar='FILE', help='nominal vehicle YAML')
     ing.add_argument('--method', choices=('spectral', 'feedback', 'kalman'))
     ing.add_argument('--band', choices=('d1', 'd2'))
-    ing.add_argument('--imu-topic', default='/imu/data', metavar='T')
-    ing.add_argument('--odom-topic', default='/odom', metavar='T')
+    add_topic_options(ing)
     add_location_options(ing)  # --line, --track, --direction, --km-origin, --gnss-topic
     ing.add_argument('--detect-fraction', type=float, metavar='F',
                      help='defects are followed from F x the alert limit of the speed class '

@@ -46,7 +46,7 @@ BAND_TOPIC = '/track/irregularity_band'
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``invert`` subcommand."""
-    from railgsa_ros.cli.review import add_location_options
+    from railgsa_ros.cli.review import add_location_options, add_topic_options
 
     p = subparsers.add_parser(
         'invert', help='reconstruct track irregularity from a bag (CSV or bag output)',
@@ -72,10 +72,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    'preset (adxl355, bmi088) for data from a real chip; bags of railgsa '
                    'simulate have none (default: the params file, else 0)')
     p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
-    p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
-    p.add_argument('--odom-topic', default='/odom', metavar='T',
-                   help='odometry topic for the speed (default /odom; without odometry, '
-                   '--speed is required)')
+    add_topic_options(p, 'odometry topic for the speed (default /odom; without odometry, '
+                      '--speed is required)')
     p.add_argument('--params', metavar='FILE',
                    help='ROS params file with irregularity_node: ros__parameters:')
     p.add_argument('--vehicle', metavar='FILE', help='vehicle YAML (default the paper Table 1)')

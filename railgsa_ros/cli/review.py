@@ -55,8 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         'the uncertainty band) is at least P, 0-1 (default '
                         f'{LISTED_PROBABILITY:g}: more likely than not; 0: every band-edge '
                         'stretch); without a band (--no-uncertainty) every exceedance')
-    p.add_argument('--imu-topic', default='/imu/data', metavar='T', help='default /imu/data')
-    p.add_argument('--odom-topic', default='/odom', metavar='T', help='default /odom')
+    add_topic_options(p)
     add_location_options(p)
     p.add_argument('--json', action='store_true',
                    help='print a JSON summary (counts, worst defect, files written) on stdout')
@@ -72,6 +71,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 LOCATION_KEYS = ('line', 'track', 'direction', 'km_origin')  # params-file keys, as the nodes'
 
 
+def bag_topic(name: str) -> str:
+    """A topic name as bags record it: fully qualified, a relative name taken in the root
+    namespace (a bag has no node namespace to resolve it in: ``imu/data`` is ``/imu/data``)."""
+    return name if name.startswith('/') else f'/{name}'
+
+
+def add_topic_options(p: argparse.ArgumentParser,
+                      odom_help: str = 'nav_msgs/Odometry topic (default /odom)') -> None:
+    """--imu-topic and --odom-topic of the commands that read bags (names as ``bag_topic``)."""
+    p.add_argument('--imu-topic', default='/imu/data', type=bag_topic, metavar='T',
+                   help='sensor_msgs/Imu topic (default /imu/data)')
+    p.add_argument('--odom-topic', default='/odom', type=bag_topic, metavar='T', help=odom_help)
+
+
 def add_location_options(p: argparse.ArgumentParser) -> None:
     """--line, --track, --direction, --km-origin, --gnss-topic (railgsa review and invert).
     The direction is checked by ``location.Reference`` (one check for options and params files;
@@ -82,7 +95,7 @@ def add_location_options(p: argparse.ArgumentParser) -> None:
                    help='km-posts increase or decrease along the run (default increasing)')
     p.add_argument('--km-origin', type=float, metavar='KM',
                    help='km-post of the run start, chainage 0 (default 0)')
-    p.add_argument('--gnss-topic', default='/gnss/fix', metavar='T',
+    p.add_argument('--gnss-topic', default='/gnss/fix', type=bag_topic, metavar='T',
                    help='sensor_msgs/NavSatFix topic, used when present (default /gnss/fix)')
 
 

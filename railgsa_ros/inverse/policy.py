@@ -825,8 +825,8 @@ class InputPolicy:
                 'speed'))
         elif (shown := self._findings['acceleration']) is not None and shown.level != OK:
             self._findings['acceleration'] = Finding('acceleration', OK, (
-                f'speed steady across the band windows ({total} outputs DEGRADED by speed '
-                'changes so far)'))
+                f'speed steady across the band windows of the latest outputs; {total} '
+                'earlier outputs were DEGRADED by speed changes (acceleration, braking)'))
 
     def _speed_finding(self, unknown: int, reverse: int, last_known: bool) -> None:
         """Count the samples of a release without a speed and at negative speed; the 'speed'
