@@ -514,3 +514,29 @@ def test_stamp_jitter_that_reorders_stamps_is_a_counted_warning_and_degraded():
     assert finding.level == WARN and 'IMU stamp jitter 0.3' in finding.message
     assert not np.any(out.quality[600:] == Quality.VALID)
     assert np.sum(out.quality == Quality.DEGRADED) > 5000
+
+
+@pytest.mark.parametrize(('chunk', 'spike'), [(2, 1e30), (500, 1e4)])
+def test_one_saturated_sample_costs_its_own_output_only(chunk, spike):
+    """A corrupt sample far beyond the range is rejected as saturated and does not enter the
+    gravity mean (it made the vertical axis miss gravity, every output INVALID, for up to a
+    minute): every other output keeps its quality."""
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=5)
+    cov = _covariance(run)
+
+    def feed(accel: np.ndarray) -> tuple[Output, InputPolicy]:
+        policy = InputPolicy(InversionConfig(speed_mps=20.0), options=PolicyOptions(
+            use_odom=False))
+        outs = [policy.imu(run.stamps_ns[i:i + chunk], accel[i:i + chunk], None,
+                           cov[i:i + chunk]) for i in range(0, run.stamps_ns.size, chunk)]
+        return Output.concat([*outs, policy.flush()]), policy
+
+    accel = run.accel.copy()
+    accel[12_000, 2] = spike
+    clean, _ = feed(run.accel)
+    out, policy = feed(accel)
+    assert policy.counters['saturated'] == 1
+    assert policy.counters.get('gravity_invalid', 0) == 0
+    kept = clean.stamps_ns != run.stamps_ns[12_000]
+    assert np.array_equal(out.stamps_ns, clean.stamps_ns[kept])
+    assert np.array_equal(out.quality, clean.quality[kept])

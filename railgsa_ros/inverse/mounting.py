@@ -149,6 +149,12 @@ class Mounting:
             self._decide(self.gravity, ramp=False)
 
     @property
+    def limit(self) -> float:
+        """Saturation limit, m/s^2: a row with an axis at or beyond it feeds no estimate (the
+        sanitiser rejects it; inf without a saturation check)."""
+        return self._limit
+
+    @property
     def settled(self) -> bool:
         """Whether SETTLE_S of blocks have been seen."""
         return self.blocks >= round(SETTLE_S / BLOCK_S)

@@ -387,17 +387,23 @@ class InputPolicy:
                 accel[absent] = np.nan
                 self._note_variances(cov, absent)
         self._frame_check(frames)
+        # the gravity mean takes the rows within the saturation limit (the sanitiser rejects
+        # the others: one 1e30 sample made the mean miss gravity for a minute)
+        lim = self.mounting.limit
         if small:
             data = accel.tolist()
             rows = [all(-np.inf < x < np.inf for x in row) for row in data]
-            flags = np.maximum(self._gravity_flags_small(data, rows),
+            usable = [all(-lim < x < lim for x in row) for row in data]
+            flags = np.maximum(self._gravity_flags_small(data, usable),
                                self._rate_flags_small(stamps, rows))
             vert, mount = self.mounting.vertical_small(data, rows)
             newest = max((t for t, ok in zip(stamps.tolist(), rows, strict=True) if ok),
                          default=None)
         else:
             finite = np.isfinite(accel).all(axis=1)
-            flags = np.maximum(self._gravity_flags(accel, finite),
+            usable = finite if float(np.max(np.abs(accel), initial=0.0)) < lim else \
+                finite & (np.abs(accel) < lim).all(axis=1)  # NaN fails: the finite mask
+            flags = np.maximum(self._gravity_flags(accel, usable),
                                self._rate_flags(stamps, finite))
             vert, mount = self.mounting.vertical(accel, finite)
             newest = int(stamps[finite].max()) if finite.any() else None
@@ -563,8 +569,8 @@ class InputPolicy:
 
     def _gravity_flags(self, accel: np.ndarray, finite: np.ndarray) -> np.ndarray:
         """INVALID where the running mean of the three axes does not put gravity on the
-        configured axis and sign (off when gravity_mps2 is 0); ``finite`` (T,): rows without
-        NaN."""
+        configured axis and sign (off when gravity_mps2 is 0); ``finite`` (T,): the rows that
+        feed the mean (no NaN, within the saturation limit)."""
         cfg = self.config
         flags = np.zeros(accel.shape[0], np.uint8)
         if cfg.gravity_mps2 == 0 or not finite.any():
