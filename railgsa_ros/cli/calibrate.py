@@ -20,8 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description=__doc__.splitlines()[0])
     p.add_argument('bag', help='rosbag2 bag (directory or file) of the run')
     p.add_argument('--reference', required=True, metavar='CSV',
-                   help='surveyed profile: CSV chainage_m,u_m (chainage from the first IMU '
-                        'sample of the bag, plus --offset)')
+                   help='surveyed profile: CSV with the header x_m,u_m (chainage from the '
+                        'first IMU sample of the bag, plus --offset)')
     p.add_argument('--offset', type=float, default=0.0, metavar='M',
                    help='bag chainage of the reference chainage 0, m (default 0)')
     p.add_argument('--parameters', default='k_s,c', metavar='NAMES',
