@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import NS, Collector, imu_msgs, point_row, vector_row
+from ros_helpers import NS, Collector, DiagnosticsLog, imu_msgs, point_row, vector_row
 
 pytestmark = pytest.mark.ros
 
@@ -127,6 +127,7 @@ def test_two_trains_side_by_side_each_pair_reads_only_its_own_imu(
                                        f'{train}/track/irregularity_band', output_qos(),
                                        vector_row)
         pubs[train] = observer.create_publisher(Imu, f'{train}/imu/data', sensor_qos())
+    diagnostics = DiagnosticsLog(observer)
     spinners = []
     for ctx, pair in zip(contexts, (nodes[:2], nodes[2:]), strict=True):
         ex = SingleThreadedExecutor(context=ctx)
@@ -164,6 +165,10 @@ def test_two_trains_side_by_side_each_pair_reads_only_its_own_imu(
                 # train's (a pair reading both topics would output both stamp ranges)
                 np.testing.assert_array_equal([row[0] for row in got[(train, kind)].snapshot()],
                                               stamps)
+        # /diagnostics tells the trains apart: each status is named by its node's namespace
+        want = {f'{t[1:]}/{n}: imu input' for t in trains for n in NODES}
+        assert wait_for(lambda: want <= set(diagnostics.latest()), 5.0), \
+            sorted(diagnostics.latest())
     finally:
         for ex, thread in spinners:
             ex.shutdown(timeout_sec=2.0)

@@ -121,6 +121,7 @@ class DiagnosticsPublisher:
     def __init__(self, node: Node, hardware_id: object, period_s: float = 1.0) -> None:
         """``hardware_id``: a string or a :class:`HardwareId` (read at every report)."""
         self._node = node
+        self._name = node.get_fully_qualified_name().lstrip('/')
         self.hardware_id = hardware_id
         self._tasks: list[tuple[str, Callable[[float], Report]]] = []
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
@@ -129,7 +130,9 @@ class DiagnosticsPublisher:
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def add(self, task: str, fn: Callable[[float], Report]) -> None:
-        """Register a task; its status is named ``"<node>: <task>"``."""
+        """Register a task; its status is named ``"<node>: <task>"`` (the node's fully
+        qualified name without the leading slash: ``train1/irregularity_node: imu input`` in
+        namespace /train1, so that two trains in one domain are told apart)."""
         self._tasks.append((task, fn))
 
     def publish(self) -> DiagnosticArray:
@@ -142,8 +145,7 @@ class DiagnosticsPublisher:
                 report = fn(elapsed)
             except Exception as exc:  # a diagnostic task must not kill the node
                 report = Report(ERROR, f'diagnostic task failed: {exc!r}')
-            statuses.append(make_status(f'{self._node.get_name()}: {task}', self.hardware_id,
-                                        report))
+            statuses.append(make_status(f'{self._name}: {task}', self.hardware_id, report))
         msg = DiagnosticArray(status=statuses)
         msg.header.stamp = self._node.get_clock().now().to_msg()
         self._pub.publish(msg)
