@@ -540,3 +540,61 @@ def test_one_saturated_sample_costs_its_own_output_only(chunk, spike):
     kept = clean.stamps_ns != run.stamps_ns[12_000]
     assert np.array_equal(out.stamps_ns, clean.stamps_ns[kept])
     assert np.array_equal(out.quality, clean.quality[kept])
+
+
+def test_a_time_reset_keeps_the_speed_known_whatever_the_jump():
+    """Stamps of IMU and odometry jump back by 5 s at once (a bag played again, a clock set):
+    the new stream's samples wait for its odometry as any do (they were released at once,
+    the newest stamp of the old stream making them look a timeout old: 4960 samples without a
+    speed, INVALID, the chainage held over 100 m)."""
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=6)
+    cut, back = 12_000, 5 * 10**9
+    imu_t = run.stamps_ns.copy()
+    imu_t[cut:] -= back
+    odom_i = np.arange(0, imu_t.size, ODOM_EVERY)
+    odom_t = imu_t[odom_i]
+    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    cov = _covariance(run)
+    outs = []
+    for i in range(0, imu_t.size, 2):  # arrival order; odometry arrives with its IMU sample
+        if i % ODOM_EVERY == 0:
+            outs.append(policy.odometry(odom_t[i // ODOM_EVERY:i // ODOM_EVERY + 1],
+                                        run.speed_mps[i:i + 1]))
+        outs.append(policy.imu(imu_t[i:i + 2], run.accel[i:i + 2], None, cov[i:i + 2]))
+    out = Output.concat([*outs, policy.flush()])
+    assert policy.counters['time_reset'] == 1
+    # around the jump only: the old stream's samples in the re-order window and after its last
+    # odometry (the new stream's odometry replaced it), the new one's before its first
+    assert policy.counters.get('speed_unknown', 0) <= 50 + 2 * ODOM_EVERY + 40
+    assert out.chainage_m[-1] == pytest.approx(20.0 * 20.0, abs=1.0)
+
+
+@pytest.mark.parametrize('chunk', [2, 4096])
+def test_an_odometry_outage_is_flagged_and_its_distance_recovered(chunk):
+    """No odometry for 3 s while the train brakes: the samples without a speed are INVALID and
+    hold the chainage (as before), and the first one with a speed again moves it on by the
+    distance at a speed linear across the outage (the held chainage lost it for good: 40 m
+    of every later position)."""
+    run = run_scenario('german-low', np.array([25.0, 25, 18, 10, 10]), 30.0, None, 'adxl355',
+                       seed=7)
+    odom_i = np.arange(0, run.stamps_ns.size, ODOM_EVERY)
+    outage = (run.stamps_ns[odom_i] > run.stamps_ns[12_000]) & (
+        run.stamps_ns[odom_i] < run.stamps_ns[15_000])
+    odom_i = odom_i[~outage]
+    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    cov = _covariance(run)
+    outs, k = [], 0
+    for lo in range(0, run.stamps_ns.size, chunk):  # odometry up to the chunk's end first
+        hi = min(lo + chunk, run.stamps_ns.size)
+        upto = np.searchsorted(odom_i, hi)
+        outs.append(policy.odometry(run.stamps_ns[odom_i[k:upto]], run.speed_mps[odom_i[k:upto]]))
+        k = upto
+        outs.append(policy.imu(run.stamps_ns[lo:hi], run.accel[lo:hi], None, cov[lo:hi]))
+    out = Output.concat([*outs, policy.flush()])
+    assert policy.counters['speed_unknown'] > 1000  # the outage past odom_timeout_s
+    truth = np.concatenate([[0.0], np.cumsum(0.5 * (run.speed_mps[1:] + run.speed_mps[:-1])
+                                             * np.diff(run.stamps_ns) * 1e-9)])
+    at = np.searchsorted(run.stamps_ns, out.stamps_ns)
+    after = out.stamps_ns > run.stamps_ns[16_000]
+    covered = truth[15_000] - truth[12_000]  # about 60 m: the held chainage lost 37 of them
+    assert np.abs(out.chainage_m[after] - truth[at[after]]).max() < 0.05 * covered

@@ -245,6 +245,15 @@ class InversionPipeline:
         """Chainage of the newest sample pushed (m); the start chainage before any."""
         return self._chain[1] if self._chain is not None else self.start_chainage_m
 
+    def add_distance(self, metres: float) -> None:
+        """Move the chainage on by ``metres`` before the next sample (a distance the speeds
+        pushed did not cover: ``InputPolicy`` across samples without a known speed)."""
+        if self._chain is None:
+            self.start_chainage_m += metres
+        else:
+            t, c, v = self._chain
+            self._chain = (t, c + metres, v)
+
     @property
     def speed_changed(self) -> int:
         """VALID outputs so far made DEGRADED by the speed change across their band window

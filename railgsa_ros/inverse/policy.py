@@ -72,6 +72,7 @@ REORDER_WINDOW_S = 0.05
 REORDER_CAP = 4  #: the re-order buffer holds at most this many windows of samples at rate_hz
 AXES = 'xyz'
 _VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
+_NO_STAMP = int(np.iinfo(np.int64).min)  #: the newest IMU stamp before any
 
 
 def _largest(values: list[float]) -> int:
@@ -183,6 +184,18 @@ def _speed_verdict(options: PolicyOptions, speed_mps: float, lost: bool, reverse
     return Finding('speed', OK, 'speed from odometry')
 
 
+def _held_speeds(odom_t: np.ndarray, odom_v: np.ndarray, stamps: np.ndarray, timeout_ns: int
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+    """(speed m/s, known, first odometry sample used) at the stamps: the newest odometry
+    sample at or before each, if at most ``timeout_ns`` older; unknown speeds are 0."""
+    if odom_t.size == 0:
+        return np.zeros(stamps.size), np.zeros(stamps.size, bool), 0
+    idx = np.searchsorted(odom_t, stamps, side='right') - 1
+    j = np.maximum(idx, 0)
+    known = (idx >= 0) & (stamps - odom_t[j] <= timeout_ns)
+    return np.where(known, odom_v[j], 0.0), known, int(j.min())
+
+
 class _Held:
     """IMU samples waiting for their speed decision, in arrival order."""
 
@@ -259,11 +272,14 @@ class InputPolicy:
         self._findings: dict[str, Finding | None] = {}  # None: made from _lazy when read
         self._lazy: dict[str, Callable[[], Finding]] = {}
         self._held = _Held()
+        self._known_at: tuple[int, float] | None = None  # stamp, speed: newest known released
+        self._gap_span: tuple[int, int] | None = None  # stamps: released without speed since
         self._reported: list[float] = []  # variances of the first NOISE_SAMPLES samples
         self._received = 0  # IMU samples given so far
-        self._newest_imu = np.iinfo(np.int64).min
+        self._newest_imu = _NO_STAMP
         self._odom_t = np.zeros(0, np.int64)
         self._odom_v = np.zeros(0)
+        self._odom_old: tuple[np.ndarray, np.ndarray] | None = None  # before a time reset
         self._gravity: np.ndarray | None = None  # running mean (3,) m/s^2 of the finite rows
         self._rate_steps = np.zeros(RATE_BLOCK, np.int64)  # stamp steps of the open rate block
         self._rate_fill = 0  # how many of them are filled
@@ -376,6 +392,25 @@ class InputPolicy:
         held for their speed decision; returns the outputs now final."""
         if stamps.size == 0:
             return self._release(final=False)
+        parts = []
+        while (cut := self._new_stream_at(stamps)) is not None:  # time went back (a loop:
+            # two interleaved clocks jump at every other sample)
+            if cut:
+                parts.append(self._arrive(stamps[:cut], accel[:cut], frames[:cut],
+                                          None if cov is None else cov[:cut]))
+            parts.append(self._release(final=True))  # the old stream's held samples first
+            self._newest_imu = _NO_STAMP  # the new stream's samples wait for its odometry
+            self._known_at = self._gap_span = self._odom_old = None
+            recent = self._odom_t <= stamps[cut] + round(self.options.backward_reset_s * 1e9)
+            self._odom_t, self._odom_v = self._odom_t[recent], self._odom_v[recent]  # its own
+            stamps, accel, frames = stamps[cut:], accel[cut:], frames[cut:]
+            cov = None if cov is None else cov[cut:]
+        out = self._arrive(stamps, accel, frames, cov)
+        return Output.concat([*parts, out], self._channels) if parts else out
+
+    def _arrive(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
+                cov: np.ndarray | None) -> Output:
+        """``_intake`` of samples of one stream (no time reset among them)."""
         small = stamps.size <= SMALL
         if cov is not None:
             if small and self._received >= NOISE_SAMPLES:  # the mask only where needed
@@ -414,6 +449,22 @@ class InputPolicy:
         self._mounting_finding()
         self._held.extend(stamps, accel, vert, frames, np.maximum(flags, mount), arrival)
         return self._release(final=False)
+
+    def _new_stream_at(self, stamps: np.ndarray) -> int | None:
+        """Index of the first IMU sample stamped more than backward_reset_s before every
+        earlier one (a time reset: a new stream, e.g. a bag played again), None without."""
+        back = round(self.options.backward_reset_s * 1e9)
+        if stamps.size <= SMALL:
+            newest = self._newest_imu
+            for i, t in enumerate(stamps.tolist()):
+                if newest != _NO_STAMP and t < newest - back:
+                    return i
+                newest = max(newest, t)
+            return None
+        newest = np.maximum.accumulate(stamps)
+        before = np.concatenate([[self._newest_imu], np.maximum(newest[:-1], self._newest_imu)])
+        jumps = np.flatnonzero((before != _NO_STAMP) & (stamps < before - back))
+        return int(jumps[0]) if jumps.size else None
 
     def flush(self) -> Output:
         """End of the input (offline end, node idle timeout, deactivate, shutdown): decide every
@@ -729,6 +780,8 @@ class InputPolicy:
         if self._odom_t.size and t <= self._odom_t[-1]:
             if t < self._odom_t[-1] - self.options.backward_reset_s * 1e9:
                 self._counts['odom_time_reset'] += 1  # a new odometry stream
+                # the old one still gives the speed of the old IMU stream's last samples
+                self._odom_old = (self._odom_t, self._odom_v)
                 self._odom_t, self._odom_v = self._odom_t[:0], self._odom_v[:0]
             else:
                 self._counts['odom_out_of_order'] += 1
@@ -752,7 +805,7 @@ class InputPolicy:
         newest_odom = self._odom_t[-1] if self._odom_t.size else np.iinfo(np.int64).min
         timeout = np.int64(round(self.options.odom_timeout_s * 1e9))
         ready = (held.stamps <= newest_odom) | (held.arrival + HOLD_SAMPLES < self._received)
-        if self._newest_imu > np.iinfo(np.int64).min + timeout:
+        if self._newest_imu > _NO_STAMP + timeout:
             ready |= held.stamps <= self._newest_imu - timeout
         return len(held) if ready.all() else int(np.argmin(ready))
 
@@ -760,15 +813,13 @@ class InputPolicy:
         """(speed m/s, known) at the stamps; unknown speeds are 0 (the chainage holds)."""
         if not self.options.use_odom:
             return np.full(stamps.size, self.config.speed_mps), np.ones(stamps.size, bool)
-        if self._odom_t.size == 0:
-            return np.zeros(stamps.size), np.zeros(stamps.size, bool)
-        idx = np.searchsorted(self._odom_t, stamps, side='right') - 1
-        j = np.maximum(idx, 0)
-        known = (idx >= 0) & (stamps - self._odom_t[j] <= round(self.options.odom_timeout_s
-                                                                  * 1e9))
-        speed = np.where(known, self._odom_v[j], 0.0)
-        keep = int(j.min())  # older odometry is no longer needed
-        self._odom_t, self._odom_v = self._odom_t[keep:], self._odom_v[keep:]
+        speed, known, keep = _held_speeds(self._odom_t, self._odom_v, stamps,
+                                          round(self.options.odom_timeout_s * 1e9))
+        self._odom_t, self._odom_v = self._odom_t[keep:], self._odom_v[keep:]  # older: unused
+        if self._odom_old is not None and not known.all():  # before an odometry time reset
+            old, in_old, _ = _held_speeds(*self._odom_old, stamps,
+                                          round(self.options.odom_timeout_s * 1e9))
+            speed, known = np.where(known, speed, old), known | in_old
         return speed, known
 
     def _speed_quality(self, speed: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -808,12 +859,48 @@ class InputPolicy:
                                 int(np.count_nonzero(speed < 0)), bool(known[-1]))
             self._rest_check(accel, speed, known)
         quality = np.maximum(flags, self._speed_quality(speed, known))
-        strict = self.options.wrong_frame_policy == 'reject'
+        frames = frames.astype(str) if self.options.wrong_frame_policy == 'reject' else None
         before = pipeline.accepted
-        out = pipeline.push(stamps, vert, speed,
-                            frames.astype(str) if strict else None, quality)
+        missed = self._missed_distance(stamps, speed, known)
+        if not missed:  # the usual case: one push
+            out = pipeline.push(stamps, vert, speed, frames, quality)
+        else:  # the chainage moves on where the speed is known again
+            parts, lo = [], 0
+            for at, metres in (*missed, (count, 0.0)):
+                parts.append(pipeline.push(stamps[lo:at], vert[lo:at], speed[lo:at],
+                                           None if frames is None else frames[lo:at],
+                                           quality[lo:at]))
+                pipeline.add_distance(metres)
+                lo = at
+            out = Output.concat(parts, self._channels)
         self._reject_finding(count, pipeline.accepted - before)
         return self.finish(out)
+
+    def _missed_distance(self, stamps: np.ndarray, speed: np.ndarray, known: np.ndarray
+                         ) -> list[tuple[int, float]]:
+        """Where a released sample with a known speed follows samples without one (no
+        odometry for longer than odom_timeout_s: their speed is 0, the chainage held): its
+        index in the chunk and the distance (m) the held chainage missed, the speed taken as
+        linear from the last known sample before the gap to this one. Carries the newest known
+        sample and the open gap across calls."""
+        if self._gap_span is None and (bool(known.all()) if known.size > SMALL
+                                       else all(known.tolist())):
+            self._known_at = (int(stamps[-1]), float(speed[-1]))
+            return []
+        missed = []
+        for i, (t, v, k) in enumerate(zip(stamps.tolist(), speed.tolist(), known.tolist(),
+                                          strict=True)):
+            if not k:
+                self._gap_span = (t if self._gap_span is None else self._gap_span[0], t)
+                continue
+            if self._gap_span is not None and self._known_at is not None:
+                (ta, va), (t1, tn) = self._known_at, self._gap_span
+                if ta < t1 <= tn < t:  # one stream (a time reset adds no distance)
+                    # linear speed over [ta, t] less the trapezoids to and from speed 0
+                    missed.append((i, 0.5e-9 * ((va + v) * (t - ta) - va * (t1 - ta)
+                                                - v * (t - tn))))
+            self._gap_span, self._known_at = None, (t, v)
+        return missed
 
     def _acceleration_finding(self, changed: int) -> None:
         """WARN while outputs are DEGRADED for the speed change across their band window
