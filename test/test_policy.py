@@ -598,3 +598,22 @@ def test_an_odometry_outage_is_flagged_and_its_distance_recovered(chunk):
     after = out.stamps_ns > run.stamps_ns[16_000]
     covered = truth[15_000] - truth[12_000]  # about 60 m: the held chainage lost 37 of them
     assert np.abs(out.chainage_m[after] - truth[at[after]]).max() < 0.05 * covered
+
+
+def test_zero_stamps_are_malformed_as_in_the_nodes_intake():
+    """A zero header stamp among real ones (what bag readers pass on, and a node's intake
+    drops as malformed) is counted and left out: it was a time reset and a 54-year gap, the
+    chainage jumping by 1.7e10 m."""
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=8)
+    stamps = run.stamps_ns.copy()
+    stamps[[5000, 12_000]] = 0
+    odom_t = run.stamps_ns[::ODOM_EVERY].copy()
+    odom_t[300] = 0
+    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    out = Output.concat([policy.odometry(odom_t, run.speed_mps[::ODOM_EVERY]),
+                         *(policy.imu(stamps[i:i + 500], run.accel[i:i + 500])
+                           for i in range(0, stamps.size, 500)), policy.flush()])
+    counts = policy.counters
+    assert counts['malformed'] == 2 and counts['odom_malformed'] == 1
+    assert counts.get('time_reset', 0) == 0 and len(out) == stamps.size - 2
+    assert out.chainage_m[-1] == pytest.approx(20.0 * 20.0, abs=0.1)

@@ -38,7 +38,8 @@ if TYPE_CHECKING:  # the command imports its modules when it runs (fast --help)
     from railgsa_ros.uncertainty import Band
     from railgsa_ros.vehicle import VehicleParams
 
-REJECTIONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
+REJECTIONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate',
+              'malformed')
 OUT_TOPIC = '/track/irregularity'
 GRID_TOPIC = '/track/irregularity_grid'  # --grid: the profile at a fixed chainage step
 BAND_TOPIC = '/track/irregularity_band'

@@ -350,8 +350,10 @@ class InputPolicy:
         stamps = np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64))
         speed = np.broadcast_to(np.asarray(speed_mps, dtype=float), stamps.shape)
         self._counts['odom_received'] += stamps.size
+        stamped = stamps > 0  # else malformed, as a node's intake finds it
         finite = np.isfinite(speed)
-        plausible = finite & (np.abs(speed) <= SPEED_LIMIT_MPS)
+        plausible = stamped & finite & (np.abs(speed) <= SPEED_LIMIT_MPS)
+        self._counts['odom_malformed'] += int((~stamped).sum())
         self._counts['odom_nan'] += int((~finite).sum())
         self._counts['odom_implausible'] += int((finite & ~plausible).sum())
         t_ok, v_ok = stamps[plausible], speed[plausible]
@@ -380,6 +382,13 @@ class InputPolicy:
             if frame_ids is None else text_array(frame_ids)
         cov = None if covariance is None else \
             np.asarray(covariance, dtype=float).reshape(stamps.size, 9)
+        if stamps.size and (min(stamps.tolist()) if stamps.size <= SMALL else stamps.min()) <= 0:
+            # a zero or negative stamp is malformed, as a node's intake finds it before the
+            # core; bag readers pass it on (a stamp 0 among real ones was a 54-year time jump)
+            keep = stamps > 0
+            self._counts['malformed'] += int(np.count_nonzero(~keep))
+            stamps, accel, frames = stamps[keep], accel[keep], frames[keep]
+            cov = None if cov is None else cov[keep]
         before = self._reorder.counters.total()
         released = self._reorder.push(stamps, accel, frames, cov)
         if self._reorder.counters.total() != before:
