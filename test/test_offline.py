@@ -375,10 +375,10 @@ def test_a_run_shorter_than_200_m_gets_a_report(tmp_path: Path, capsys) -> None:
     assert err.count('\n') == 1 and 'INVALID' in err and not (tmp_path / 'o2').exists()
 
 
-def test_a_few_zero_stamps_are_time_resets_not_a_memory_error(tmp_path: Path, capsys) -> None:
-    """Zero header stamps: the input policy finds no odometry at stamp 0 (unknown speed, the
-    chainage holds, INVALID), the sanitiser restarts the filters around them; the review of
-    the rest is written (before the policy: a 34,000 km chainage jump)."""
+def test_a_few_zero_stamps_are_left_out_not_a_memory_error(tmp_path: Path, capsys) -> None:
+    """Zero header stamps are malformed (counted and left out by the input policy, as by a
+    node's intake); the review of the rest is written (before the policy: a 34,000 km
+    chainage jump)."""
     run = run_scenario('german-low', 20.0, 20.0, 1000.0, 'adxl355', 1)
     stamps = run.stamps_ns.copy()
     stamps[[5000, 5001, 12000]] = 0
