@@ -104,3 +104,14 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
     bad.write_text('parameters: {k_s: {dist: normal, mu: 1}}')
     assert main(['gsa', '--uncertainty', str(bad)]) == 2
     assert 'parameters.k_s.sigma' in capsys.readouterr().err
+
+
+def test_cli_flat_output_has_undefined_indices(capsys):
+    """At t = 0 the paper profile has not begun: the output's variance is rounding error and
+    its shares are no sensitivities (they read 0.37 and 0.57): null with a note."""
+    assert main(['gsa', '--time', '0', '--order', '2', '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['std'] < 1e-20
+    for key in ('sobol_first', 'sobol_total', 'delta'):
+        assert set(out[key].values()) == {None}
+    assert any('undefined' in note for note in out['notes'])

@@ -264,10 +264,14 @@ def test_deferred_windows_give_the_streamed_records(run):
     offline.close()
     deferred = offline.analyze_deferred()
     assert len(deferred) == len(streamed) == 2 * 16  # more than DEFER_BATCH windows
-    for a, b in zip(streamed, deferred, strict=True):  # bit for bit, but the compute time
-        for f in fields(a):
+    for a, b in zip(streamed, deferred, strict=True):  # to rounding, but the compute time:
+        for f in fields(a):  # BLAS may take another kernel (summation order) for a batch
             if f.name != 'compute_s':
-                np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name))
+                want, got = getattr(a, f.name), getattr(b, f.name)
+                if isinstance(want, (float, np.ndarray)):
+                    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+                else:
+                    assert got == want, f.name
 
 
 @pytest.mark.parametrize(('changes', 'field'), [

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import argparse
 
+#: output std (m or m/s^2) below which the output counts as constant: 1e-12 m is a
+#: thousandth of a nanometre of irregularity, far below any sensor (the flat start of a
+#: profile gives 1e-14 to 1e-35, shares of rounding errors)
+FLAT_STD = 1e-12
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``gsa`` subcommand."""
@@ -74,15 +79,22 @@ def run(args: argparse.Namespace) -> int:
     notes = [str(w.message) for w in caught if issubclass(w.category, AliasingWarning)]
     delta = result.delta
     assert delta is not None  # analyze computes it by default
+    first, total = result.sobol_first, result.sobol_total
+    if not float(result.std) > FLAT_STD:  # shares of a rounding-error variance: undefined
+        first = total = delta = np.full(len(names), np.nan)
+        notes.append(f'the output does not vary with the parameters at t = {args.time:g} s '
+                     f'(std {float(result.std):.3g} {scenario.unit}): the sensitivity indices '
+                     'are undefined (NaN); choose a time where the response has begun')
     q = result.quantiles([0.025, 0.5, 0.975])
     out = {
         'scenario': args.scenario, 'time_s': args.time, 'unit': scenario.unit,
         'parameters': {n: {'mean': d.mean(), 'std': d.std()} for n, d in dists.items()},
         'mean': float(result.mean), 'std': float(result.std),
         'quantiles': {'2.5%': float(q[0]), '50%': float(q[1]), '97.5%': float(q[2])},
-        'sobol_first': dict(zip(names, np.round(result.sobol_first, 6).tolist(), strict=True)),
-        'sobol_total': dict(zip(names, np.round(result.sobol_total, 6).tolist(), strict=True)),
-        'delta': dict(zip(names, np.round(delta, 6).tolist(), strict=True)),
+        **{key: {n: round(x, 6) if np.isfinite(x) else None  # null: undefined
+                 for n, x in zip(names, values.tolist(), strict=True)}
+           for key, values in (('sobol_first', first), ('sobol_total', total),
+                               ('delta', delta))},
         'n_evaluations': result.n_evaluations, 'rule': args.rule, 'order': args.order,
         'fit': result.fit, 'notes': notes,
     }
@@ -110,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
           f'({result.fit})')
     print(f'{"parameter":<10}{"S_first":>10}{"S_total":>10}{"delta":>10}')
     for i, name in enumerate(names):
-        print(f'{name:<10}{result.sobol_first[i]:10.4f}{result.sobol_total[i]:10.4f}'
+        print(f'{name:<10}{first[i]:10.4f}{total[i]:10.4f}'
               f'{delta[i]:10.4f}')
     for note in notes:
         print(f'note: {note}')
