@@ -135,10 +135,11 @@ def test_growing_defect_and_its_rate(ingested, series):
     _, path, _ = ingested
     con = db.connect(path, read_only=True)
     rows = con.execute('SELECT x_m, passes, new, rate_mm_per_year, rate_se_mm_per_year, '
-                       'depth_m, depth_sd_m FROM defects WHERE abs(x_m - ?) < 3',
+                       'depth_m, depth_sd_m, x_sd_m FROM defects WHERE abs(x_m - ?) < 3',
                        [_frame(series.truth_x['grow'])]).fetchall()
     assert len(rows) == 1
-    x_m, passes, new, rate, se, depth, depth_sd = rows[0]
+    x_m, passes, new, rate, se, depth, depth_sd, x_sd = rows[0]
+    assert 0 < x_sd < 0.5  # the passes' scatter (no GNSS: the frame pass has an SD of 0)
     assert passes == 5 and not new
     days, truth = series.truth_depth['grow']
     truth_rate = np.polyfit(days, truth, 1)[0] * 365.25e3  # mm/year

@@ -196,7 +196,11 @@ def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int,
     if trend is not None and np.isfinite(limit):
         dates = tuple(_date(t) for t in crossing(trend, limit, now))
     w = 1.0 / obs['x_sd'][use] ** 2 if np.all(obs['x_sd'][use] > 0) else None
-    x_sd = float(np.sqrt(1.0 / w.sum())) if w is not None else 0.0
+    seen = obs['x'][use]
+    # at least the standard error of the passes' scatter: the frame-defining pass has an SD of
+    # 0 (it is the frame), which made every defect's 0 without GNSS
+    scatter = float(np.std(seen, ddof=1) / np.sqrt(seen.size)) if seen.size > 1 else 0.0
+    x_sd = max(float(np.sqrt(1.0 / w.sum())) if w is not None else 0.0, scatter)
     per_year = 365.25e3  # m/day -> mm/year
     con.execute(f'INSERT INTO defects VALUES ({", ".join("?" * 24)})',
                 [line, track, d, x, x / 1000.0, x_sd, int(sign),
