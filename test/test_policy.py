@@ -617,3 +617,30 @@ def test_zero_stamps_are_malformed_as_in_the_nodes_intake():
     assert counts['malformed'] == 2 and counts['odom_malformed'] == 1
     assert counts.get('time_reset', 0) == 0 and len(out) == stamps.size - 2
     assert out.chainage_m[-1] == pytest.approx(20.0 * 20.0, abs=0.1)
+
+
+def test_an_option_change_the_filters_do_not_see_keeps_them_running():
+    """stuck_s, reorder_window_s or speed_mps (speed from odometry) changed mid-run: the
+    options apply to the running filters, whose outputs are those of a run without the change
+    (a rebuild flushed them: 5,024 more INVALID outputs, 100 m of track, per change)."""
+    run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=9)
+    cov = _covariance(run)
+
+    def feed(change: bool) -> tuple[Output, InputPolicy]:
+        policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+        outs = []
+        for i in range(0, run.stamps_ns.size, 500):
+            if i % ODOM_EVERY == 0:
+                sl = slice(i, i + 500, ODOM_EVERY)
+                outs.append(policy.odometry(run.stamps_ns[sl], run.speed_mps[sl]))
+            if change and i == 10_000:
+                outs.append(policy.rebuild(InversionConfig(speed_mps=33.0), options=PolicyOptions(
+                    stuck_s=0.6, reorder_window_s=0.08)))
+            outs.append(policy.imu(run.stamps_ns[i:i + 500], run.accel[i:i + 500], None,
+                                   cov[i:i + 500]))
+        return Output.concat([*outs, policy.flush()]), policy
+
+    (plain, _), (changed, policy) = feed(False), feed(True)
+    assert policy.counters['reconfigure'] == 1 and policy.counters.get('rebuild', 0) == 0
+    assert policy.options.stuck_s == 0.6 and policy.config.speed_mps == 33.0
+    assert_identical(changed, plain)

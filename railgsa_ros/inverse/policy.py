@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -496,7 +496,22 @@ class InputPolicy:
                 bank: np.ndarray | None = None,
                 options: PolicyOptions | None = None) -> Output:
         """A parameter change: flush the old filters (their outputs are returned), build new
-        ones that continue the chainage; held samples and the noise decision are kept."""
+        ones that continue the chainage; held samples and the noise decision are kept. A
+        change the filters do not see (input options alone; speed_mps while the speed comes
+        from odometry) is applied to the running ones (``reconfigure`` counted): a rebuild
+        costs the band delay of INVALID outputs, 5 s of track."""
+        new = replace(config if config is not None else self.config,
+                      speed_mps=self.config.speed_mps) \
+            if self.options.use_odom and (options is None or options.use_odom) else config
+        if self.pipeline is not None and bank is None and new in (None, self.config) and (
+                vehicle is None or np.array_equal(as_theta(vehicle), self.theta)):
+            self.config = config if config is not None else self.config
+            self.options = options if options is not None else self.options
+            self._reorder.configure(*self._reorder_limits())
+            self.pipeline.sanitizer.set_limits(self.options.stuck_s,
+                                               self.options.backward_reset_s)
+            self._counts['reconfigure'] += 1
+            return self._empty()
         out = self._empty()
         if self.pipeline is not None:
             out = self.finish(self.pipeline.flush())
