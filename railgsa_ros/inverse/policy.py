@@ -470,8 +470,8 @@ class InputPolicy:
                     return i
                 newest = max(newest, t)
             return None
-        newest = np.maximum.accumulate(stamps)
-        before = np.concatenate([[self._newest_imu], np.maximum(newest[:-1], self._newest_imu)])
+        running = np.maximum.accumulate(stamps)
+        before = np.concatenate([[self._newest_imu], np.maximum(running[:-1], self._newest_imu)])
         jumps = np.flatnonzero((before != _NO_STAMP) & (stamps < before - back))
         return int(jumps[0]) if jumps.size else None
 
@@ -883,16 +883,16 @@ class InputPolicy:
                                 int(np.count_nonzero(speed < 0)), bool(known[-1]))
             self._rest_check(accel, speed, known)
         quality = np.maximum(flags, self._speed_quality(speed, known))
-        frames = frames.astype(str) if self.options.wrong_frame_policy == 'reject' else None
+        checked = frames.astype(str) if self.options.wrong_frame_policy == 'reject' else None
         before = pipeline.accepted
         missed = self._missed_distance(stamps, speed, known)
         if not missed:  # the usual case: one push
-            out = pipeline.push(stamps, vert, speed, frames, quality)
+            out = pipeline.push(stamps, vert, speed, checked, quality)
         else:  # the chainage moves on where the speed is known again
             parts, lo = [], 0
             for at, metres in (*missed, (count, 0.0)):
                 parts.append(pipeline.push(stamps[lo:at], vert[lo:at], speed[lo:at],
-                                           None if frames is None else frames[lo:at],
+                                           None if checked is None else checked[lo:at],
                                            quality[lo:at]))
                 pipeline.add_distance(metres)
                 lo = at
