@@ -264,14 +264,18 @@ def test_deferred_windows_give_the_streamed_records(run):
     offline.close()
     deferred = offline.analyze_deferred()
     assert len(deferred) == len(streamed) == 2 * 16  # more than DEFER_BATCH windows
-    for a, b in zip(streamed, deferred, strict=True):  # to rounding, but the compute time:
-        for f in fields(a):  # BLAS may take another kernel (summation order) for a batch
-            if f.name != 'compute_s':
-                want, got = getattr(a, f.name), getattr(b, f.name)
-                if isinstance(want, (float, np.ndarray)):
-                    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
-                else:
-                    assert got == want, f.name
+    # to rounding, but the compute time: BLAS may take another kernel (summation order) for a
+    # batch, and a delta's kernel-density sign decisions can flip on 1 ulp (5e-5 seen, against
+    # the estimator's own RMS error of 0.002-0.009)
+    for a, b in zip(streamed, deferred, strict=True):
+        for f in fields(a):
+            want, got = getattr(a, f.name), getattr(b, f.name)
+            if f.name == 'delta':
+                np.testing.assert_allclose(got, want, rtol=0, atol=1e-3)
+            elif isinstance(want, (float, np.ndarray)) and f.name != 'compute_s':
+                np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+            elif f.name != 'compute_s':
+                assert got == want, f.name
 
 
 @pytest.mark.parametrize(('changes', 'field'), [

@@ -13,10 +13,10 @@ The delta estimates evaluate every window's surrogate at the same germ points
 (``uq.delta.delta_design``), whose PCE basis the analyzer builds once (``DeltaBasis``).
 Offline (``defer=True``), closed windows wait and ``analyze_deferred`` runs their delta
 estimates together, ``DEFER_BATCH`` windows per call: the same records to rounding (each
-output's estimate uses the same samples; BLAS may sum a batch in another order) in less time
-per window (measured on one core: 10 instead of 14 ms;
-more windows per call save nothing more). The basis takes 4 MB, an estimate up to 7 MB for
-one window and 13 MB for six (tracemalloc).
+output's estimate uses the same samples; BLAS may sum a batch in another order, and a delta's
+sign decisions can flip on 1 ulp: 5e-5) in less time per window (measured on one core: 10
+instead of 14 ms; more windows per call save nothing more). The basis takes 4 MB, an
+estimate up to 7 MB for one window and 13 MB for six (tracemalloc).
 """
 
 from __future__ import annotations
