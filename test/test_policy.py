@@ -644,3 +644,21 @@ def test_an_option_change_the_filters_do_not_see_keeps_them_running():
     assert policy.counters['reconfigure'] == 1 and policy.counters.get('rebuild', 0) == 0
     assert policy.options.stuck_s == 0.6 and policy.config.speed_mps == 33.0
     assert_identical(changed, plain)
+
+
+def test_an_odometry_sign_glitch_is_implausible_not_reverse_running():
+    """One second of -20 m/s from an odometry reading +20 m/s (a sign glitch: 2000 m/s^2 at
+    50 Hz) is counted and ignored like NaN odometry: the speed holds, no reverse running (it
+    was VALID reverse running and put every later position 40 m short)."""
+    run = run_scenario('german-low', 20.0, 12.0, None, 'adxl355', seed=10)
+    odom_t, odom_v = run.stamps_ns[::ODOM_EVERY], np.array(run.speed_mps[::ODOM_EVERY])
+    glitch = (odom_t >= run.stamps_ns[6_000]) & (odom_t < run.stamps_ns[6_900])
+    odom_v[glitch] *= -1.0
+    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    out = Output.concat([policy.odometry(odom_t, odom_v),
+                         *(policy.imu(run.stamps_ns[i:i + 500], run.accel[i:i + 500])
+                           for i in range(0, run.stamps_ns.size, 500)), policy.flush()])
+    assert policy.counters['odom_implausible'] == glitch.sum()
+    assert policy.counters.get('reverse', 0) == 0 and policy.counters.get('speed_unknown', 0) == 0
+    assert out.chainage_m[-1] == pytest.approx(20.0 * 12.0, abs=0.1)
+    assert {f.level for f in policy.findings if f.key == 'odometry'} == {WARN}

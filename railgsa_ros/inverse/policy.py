@@ -15,8 +15,9 @@ policy"):
   final: until odometry newer than them has arrived, or IMU stamps ``odom_timeout_s`` later,
   or HOLD_SAMPLES later samples, or ``flush``; so the decisions depend on the data, not on how
   it was batched (odometry must arrive in stamp order; older odometry is counted and ignored,
-  odometry going back by more than ``backward_reset_s`` restarts it). Non-finite odometry and
-  speeds beyond SPEED_LIMIT_MPS are counted and ignored (no IMU sample is dropped); a negative
+  odometry going back by more than ``backward_reset_s`` restarts it). Non-finite odometry,
+  speeds beyond SPEED_LIMIT_MPS and jumps beyond ``_speed_step`` from the last accepted speed
+  are counted and ignored (no IMU sample is dropped); a negative
   speed is reverse running: the band uses |v|, the chainage decreases, it is counted and
   reported. ``speed_mps`` is used only with ``use_odom`` false (``--speed`` offline).
 - quality per sample (:class:`~railgsa_ros.inverse.quality.Quality`), carried through the band
@@ -61,6 +62,11 @@ from railgsa_ros.vehicle import VehicleParams, as_theta
 OK, WARN, ERROR = 0, 1, 2  #: finding levels (diagnostic_msgs/DiagnosticStatus levels)
 NOISE_SAMPLES = 64  #: IMU samples whose reported variances decide the noise
 HOLD_SAMPLES = 1 << 16  #: an IMU sample waits for odometry at most this many later samples
+#: an odometry speed changing faster than this (beyond ODOM_NOISE_MPS) is implausible: 2 g,
+#: where trains brake at up to about 3 m/s^2 in an emergency (a margin for simulated
+#: profiles); a sign flip at 20 m/s is 2000 m/s^2 at 50 Hz, a drop to 0 is 1000 m/s^2
+ODOM_ACCEL_MPS2 = 20.0
+ODOM_NOISE_MPS = 1.0  #: odometry speed noise allowed on top of ODOM_ACCEL_MPS2, m/s
 GRAVITY_TAU_S = 1.0  #: time constant of the per-axis running mean that finds gravity, s
 GRAVITY_TOLERANCE = 0.25  #: the vertical axis must read gravity within this fraction
 RATE_BLOCK = 512  #: stamp steps per rate measurement (``inverse.rate``: counted per stamp)
@@ -182,6 +188,12 @@ def _speed_verdict(options: PolicyOptions, speed_mps: float, lost: bool, reverse
             f'reverse running: {total_reverse} samples at negative speed (the chainage '
             'decreases); if the train ran forward, the odometry sign is reversed'))
     return Finding('speed', OK, 'speed from odometry')
+
+
+def _speed_step(dt_ns: np.ndarray | int) -> np.ndarray | float:
+    """Largest odometry speed change (m/s) a train makes in dt_ns: ODOM_ACCEL_MPS2 x dt plus
+    ODOM_NOISE_MPS for the odometry's own noise."""
+    return ODOM_ACCEL_MPS2 * np.asarray(dt_ns) * 1e-9 + ODOM_NOISE_MPS
 
 
 def _held_speeds(odom_t: np.ndarray, odom_v: np.ndarray, stamps: np.ndarray, timeout_ns: int
@@ -351,14 +363,16 @@ class InputPolicy:
         speed = np.broadcast_to(np.asarray(speed_mps, dtype=float), stamps.shape)
         self._counts['odom_received'] += stamps.size
         stamped = stamps > 0  # else malformed, as a node's intake finds it
-        finite = np.isfinite(speed)
-        plausible = stamped & finite & (np.abs(speed) <= SPEED_LIMIT_MPS)
+        finite = stamped & np.isfinite(speed)
+        plausible = finite & (np.abs(speed) <= SPEED_LIMIT_MPS)
         self._counts['odom_malformed'] += int((~stamped).sum())
-        self._counts['odom_nan'] += int((~finite).sum())
+        self._counts['odom_nan'] += int((stamped & ~finite).sum())
         self._counts['odom_implausible'] += int((finite & ~plausible).sum())
         t_ok, v_ok = stamps[plausible], speed[plausible]
-        if t_ok.size and np.all(np.diff(t_ok) > 0) and not (
-                self._odom_t.size and t_ok[0] <= self._odom_t[-1]):
+        t_all = np.concatenate([self._odom_t[-1:], t_ok])
+        v_all = np.concatenate([self._odom_v[-1:], v_ok])
+        if t_ok.size and np.all(np.diff(t_all) > 0) and np.all(  # in order, no jump
+                np.abs(np.diff(v_all)) <= _speed_step(np.diff(t_all))):
             # in order after the newest (as recorded): what the loop below appends, at once
             self._odom_t = np.concatenate([self._odom_t, t_ok])
             self._odom_v = np.concatenate([self._odom_v, v_ok])
@@ -810,6 +824,10 @@ class InputPolicy:
             else:
                 self._counts['odom_out_of_order'] += 1
                 return
+        elif self._odom_t.size and abs(v - self._odom_v[-1]) > _speed_step(
+                t - int(self._odom_t[-1])):
+            self._counts['odom_implausible'] += 1  # a jump no train makes: a glitch, a slide
+            return
         self._odom_t = np.append(self._odom_t, np.int64(t))
         self._odom_v = np.append(self._odom_v, v)
 
