@@ -514,20 +514,13 @@ class InputPolicy:
         change the filters do not see (input options alone; speed_mps while the speed comes
         from odometry) is applied to the running ones (``reconfigure`` counted): a rebuild
         costs the band delay of INVALID outputs, 5 s of track."""
-        new = replace(config if config is not None else self.config,
-                      speed_mps=self.config.speed_mps) \
-            if self.options.use_odom and (options is None or options.use_odom) else config
-        if self.pipeline is not None and bank is None and new in (None, self.config) and (
-                vehicle is None or np.array_equal(as_theta(vehicle), self.theta)):
-            self.config = config if config is not None else self.config
-            self.options = options if options is not None else self.options
-            self._reorder.configure(*self._reorder_limits())
-            self.pipeline.sanitizer.set_limits(self.options.stuck_s,
-                                               self.options.backward_reset_s)
-            self._counts['reconfigure'] += 1
-            return self._empty()
+        seen = config if config is not None else self.config  # what the filters see of it
+        if self.options.use_odom and (options is None or options.use_odom):
+            seen = replace(seen, speed_mps=self.config.speed_mps)  # unused with odometry
+        keep = self.pipeline is not None and bank is None and seen == self.config and (
+            vehicle is None or np.array_equal(as_theta(vehicle), self.theta))
         out = self._empty()
-        if self.pipeline is not None:
+        if self.pipeline is not None and not keep:
             out = self.finish(self.pipeline.flush())
             self._retired.update(self.pipeline.counters)
             self._start_chainage = self.pipeline.chainage_m
@@ -537,6 +530,11 @@ class InputPolicy:
         self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
         self.options = options if options is not None else self.options
         self._reorder.configure(*self._reorder_limits())
+        if keep and self.pipeline is not None:  # the running filters take the new options
+            self.pipeline.sanitizer.set_limits(self.options.stuck_s,
+                                               self.options.backward_reset_s)
+            self._counts['reconfigure'] += 1
+            return out
         self._counts['rebuild'] += 1
         self.mounting.configure(self.config)
         self._check_units()
@@ -855,12 +853,11 @@ class InputPolicy:
         """(speed m/s, known) at the stamps; unknown speeds are 0 (the chainage holds)."""
         if not self.options.use_odom:
             return np.full(stamps.size, self.config.speed_mps), np.ones(stamps.size, bool)
-        speed, known, keep = _held_speeds(self._odom_t, self._odom_v, stamps,
-                                          round(self.options.odom_timeout_s * 1e9))
+        timeout = round(self.options.odom_timeout_s * 1e9)
+        speed, known, keep = _held_speeds(self._odom_t, self._odom_v, stamps, timeout)
         self._odom_t, self._odom_v = self._odom_t[keep:], self._odom_v[keep:]  # older: unused
         if self._odom_old is not None and not known.all():  # before an odometry time reset
-            old, in_old, _ = _held_speeds(*self._odom_old, stamps,
-                                          round(self.options.odom_timeout_s * 1e9))
+            old, in_old, _ = _held_speeds(*self._odom_old, stamps, timeout)
             speed, known = np.where(known, speed, old), known | in_old
         return speed, known
 
