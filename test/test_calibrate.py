@@ -207,3 +207,10 @@ def test_the_sensor_delay_is_fitted_and_written_where_every_command_reads_it(tmp
     assert main(['calibrate', str(bag), '--reference', str(ref), '--fit-delay',
                  '--out-vehicle', str(out['veh']), '--out-uncertainty', str(out['unc']),
                  '--overwrite']) == 2
+    capsys.readouterr()
+    # at constant speed a reference registered to 2 m cannot tell a delay from its shift
+    assert main(['calibrate', str(bag), '--reference', str(ref), '--fit-delay',
+                 '--out-params', str(tmp_path / 'p2.yaml'), '--out-vehicle',
+                 str(tmp_path / 'v2.yaml'), '--out-uncertainty', str(tmp_path / 'u2.yaml')]) == 2
+    assert 'not told apart' in capsys.readouterr().err
+    assert not (tmp_path / 'p2.yaml').exists()
