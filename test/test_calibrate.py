@@ -184,11 +184,14 @@ def test_the_sensor_delay_is_fitted_and_written_where_every_command_reads_it(tmp
     ref = tmp_path / 'ref.csv'
     save_csv(ref, *_reference(run))
     out = {k: tmp_path / f'{k}.yaml' for k in ('veh', 'unc', 'params')}
+    base = tmp_path / 'base.yaml'  # the params file the runs use: kept, the delay set in it
+    base.write_text('/**:\n  ros__parameters:\n    band: d1\n    sensor_delay_s: 0.0\n')
     assert main(['calibrate', str(bag), '--reference', str(ref), '--registration-sd', '0.01',
-                 '--fit-delay', '--out-params', str(out['params']),
+                 '--fit-delay', '--out-params', str(out['params']), '--base-params', str(base),
                  '--out-vehicle', str(out['veh']), '--out-uncertainty', str(out['unc'])]) == 0
     assert 'sensor delay' in capsys.readouterr().out
     fitted = yaml.safe_load(out['params'].read_text())['/**']['ros__parameters']
+    assert fitted['band'] == 'd1'
     tau = sensor_delay_s('bmi088@200Hz')
     assert abs(fitted['sensor_delay_s'] - tau) < max(2 * fitted['delay_std_s'], 0.5e-3)
     assert fitted['delay_std_s'] < 1e-3

@@ -8,8 +8,9 @@ the model discrepancy the calibrated band still leaves on that stretch (``discre
 ``railgsa_ros.calibrate.discrepancy_std``) that every band adds in variance. With
 ``--fit-delay`` it also fits the sensor delay (from ``--sensor-delay``, the chip's datasheet
 setting, as prior centre) and writes it with its posterior std to a ROS params file
-(``--out-params``: ``/**: ros__parameters: sensor_delay_s, delay_std_s``) that ``--params`` of
-every command and the nodes' params file read.
+(``--out-params``: ``/**: ros__parameters: sensor_delay_s, delay_std_s``; a copy of
+``--base-params``, the file the runs use, with those set) that ``--params`` of every command and
+the nodes read.
 """
 
 from __future__ import annotations
@@ -53,6 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         'registered to a metre or two)')
     p.add_argument('--out-params', metavar='YAML',
                    help='ROS params file for the fitted delay (with --fit-delay)')
+    p.add_argument('--base-params', metavar='YAML',
+                   help='the params file the runs use, copied into --out-params with the delay '
+                        'set under "/**" (default: a file with the delay alone)')
     p.add_argument('--speed', type=float, help='constant speed in m/s, overriding odometry')
     add_topic_options(p)
     p.add_argument('--out-vehicle', required=True, metavar='YAML')
@@ -134,8 +138,8 @@ def run(args: argparse.Namespace) -> int:
     law = {'parameters': uncertain, 'discrepancy_std_m': discrepancy, 'posterior': posterior}
     outputs = [(args.out_vehicle, {'vehicle': theta}), (args.out_uncertainty, law)]
     if args.fit_delay:
-        outputs.append((args.out_params, {'/**': {'ros__parameters': {
-            'sensor_delay_s': cal.delay_s, 'delay_std_s': cal.delay_sd_s}}}))
+        outputs.append((args.out_params, _with_delay(args.base_params, cal.delay_s,
+                                                     cal.delay_sd_s)))
     for path, doc in outputs:
         with atomic_output(path, args.overwrite) as tmp:
             tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -153,6 +157,22 @@ def run(args: argparse.Namespace) -> int:
               f'(sensor_delay_s, delay_std_s in {args.out_params}); correlation with the '
               f'registration {cal.delay_shift_corr:+.2f}')
     return 0
+
+
+def _with_delay(base: str | None, delay_s: float, delay_sd_s: float) -> dict:
+    """The params file ``base`` (None: empty) with ``sensor_delay_s`` and ``delay_std_s`` set
+    under ``/**`` (both nodes, any namespace: where the inversion's shared values go)."""
+    from railgsa_ros.config import load_yaml
+    from railgsa_ros.errors import ConfigError
+
+    doc = load_yaml(base) if base else {}
+    shared = doc.setdefault('/**', {}) if isinstance(doc, dict) else None
+    params = shared.setdefault('ros__parameters', {}) if isinstance(shared, dict) else None
+    if not isinstance(params, dict):
+        raise ConfigError(f'{base}: expected a ROS params file (a mapping of node sections with '
+                          'ros__parameters: mappings)')
+    params.update(sensor_delay_s=delay_s, delay_std_s=delay_sd_s)
+    return doc
 
 
 def _prior_entries(prior) -> dict[str, dict[str, str | float]]:
