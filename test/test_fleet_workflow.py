@@ -26,7 +26,7 @@ from railgsa_ros.fleet import db
 from railgsa_ros.fleet.fuse import PRIOR_SIGMA_M
 from railgsa_ros.geo import geodetic_to_enu
 from railgsa_ros.inverse.score import band_distance
-from railgsa_ros.review.sections import SECTION_M
+from railgsa_ros.standards.sections import SECTION_M
 from railgsa_ros.review.truth import load_truth
 
 README = Path(__file__).resolve().parents[1] / 'README.md'

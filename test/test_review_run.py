@@ -16,7 +16,7 @@ from railgsa_ros.bag import read_imu, write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.review.build import build_review, write_review
-from railgsa_ros.review.grid import GridBuilder
+from railgsa_ros.standards.sampling import GridBuilder
 from railgsa_ros.review.outputs import summary
 from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.scenario import run_scenario
@@ -128,7 +128,7 @@ def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
     last bit); its widest band is the widest of the samples around the grid's cells."""
     from railgsa_ros.offline import Source
     from railgsa_ros.review import band as kept
-    from railgsa_ros.review.limits import en13848_limits
+    from railgsa_ros.standards.en13848 import Limits, en13848_table
     from railgsa_ros.review.stream import run_stream
 
     def everywhere(self, chainage_m, u_m, speed_mps, mean_m, bank_u_m, sensor_std_m):
@@ -139,7 +139,7 @@ def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
     monkeypatch.setattr(kept.KeptBand, 'take', everywhere)
     bag, _ = simulated
     full, _ = run_stream(Source(bag), CHEAP, review.options.vehicle, table3(),
-                         en13848_limits())
+                         Limits(en13848_table(), 'd1'))
     run = review.run
     assert np.array_equal(run.grid.u_m, full.grid.u_m, equal_nan=True)
     for name in ('lower_m', 'upper_m'):
@@ -293,14 +293,14 @@ def test_without_odometry_the_speed_is_unknown_and_refused(tmp_path: Path) -> No
     a fixed speed must be asked for (run_stream's speed_mps)."""
     from railgsa_ros.errors import InputError
     from railgsa_ros.offline import Source
-    from railgsa_ros.review.limits import en13848_limits
+    from railgsa_ros.standards.en13848 import Limits, en13848_table
     from railgsa_ros.review.stream import run_stream
 
     run = run_scenario('german-low', 25.0, 12.0, 1000.0, 'ideal', 4)
     bag = _bag_with(tmp_path / 'imu_only', run, ('imu',))
     with pytest.raises(InputError, match='no odometry'):
         build_review(ReviewOptions(bag, UncertaintyConfig()))
-    fixed, _ = run_stream(Source(bag), UncertaintyConfig(), None, None, en13848_limits(),
+    fixed, _ = run_stream(Source(bag), UncertaintyConfig(), None, None, Limits(en13848_table(), 'd1'),
                           speed_mps=25.0)
     grid = fixed.grid
     assert np.all(grid.speed_mps[grid.valid] == 25.0)

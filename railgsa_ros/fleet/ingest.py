@@ -25,8 +25,8 @@ from railgsa_ros.fleet.align import Alignment, Reference, on_line_grid, origin, 
 from railgsa_ros.fleet.condition import update_line
 from railgsa_ros.fleet.gnss import align_fixes, geometry_json, line_from_json
 from railgsa_ros.fleet.passes import PassFailure, PassOptions, PassResult, analyse_or_fail
-from railgsa_ros.review.limits import en13848_limits
-from railgsa_ros.review.sections import section_sd
+from railgsa_ros.standards.en13848 import Limits, en13848_table
+from railgsa_ros.standards.sections import section_sd
 
 if TYPE_CHECKING:
     from dask.distributed import Client
@@ -225,7 +225,8 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
                 if report is not None:
                     report(outcome)
         update_line(con, options.line, options.track, options.dx_m,
-                    en13848_limits(options.config.inversion.band), geometry,
+                    Limits(options.limits or en13848_table(), options.config.inversion.band,
+                           options.line_speed), geometry,
                     options.detect_fraction)
     finally:
         con.close()

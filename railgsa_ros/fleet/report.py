@@ -22,9 +22,10 @@ import numpy as np
 
 from railgsa_ros.fileio import atomic_output
 from railgsa_ros.fleet import db
-from railgsa_ros.fleet.condition import DAY_NS
+from railgsa_ros.fleet.condition import DAY_NS, reclass
 from railgsa_ros.fleet.trend import fit_trend
-from railgsa_ros.review.limits import en13848_limits
+from railgsa_ros.standards.en13848 import Limits, LimitTable, en13848_table
+from railgsa_ros.standards.line_speed import LineSpeed
 
 REPORT = 'report.html'
 MM = 1e3
@@ -97,9 +98,11 @@ def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: st
     return path
 
 
-def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str) -> Path:
+def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str,
+                  limits: Limits) -> Path:
     """SD of the band-filtered profile per 200 m section, one line per pass (by date), with the
-    lower end of the EN 13848-5 SD alert range of each section's speed."""
+    lower end of the SD alert range of each section (``limits``: at its centre's km-post and
+    its pass's speed)."""
     rows = db.fetch(con, """SELECT s.pass_id, s.start_m, s.sd_m, s.speed_mps,
                                   strftime(p.start_time, '%Y-%m-%d') AS day
                            FROM segments s JOIN passes p USING (pass_id)
@@ -112,7 +115,7 @@ def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: 
         ax.plot(km, rows['sd_m'][pick] * MM, 'o-', ms=3, lw=0.8,
                 label=f'pass {pid} ({rows["day"][pick][0]})')
     if rows['start_m'].size:
-        alert = en13848_limits().sd_at(rows['speed_mps'])[:, 0]
+        alert = limits.sd_at(rows['start_m'] + 100.0, rows['speed_mps'])[:, 0]
         order = np.argsort(rows['start_m'])
         ax.step((rows['start_m'][order] + 100.0) / 1000, alert[order] * MM, where='mid',
                 color='tab:red', ls='--', lw=1, label='SD alert (lower end)')
@@ -160,29 +163,51 @@ STYLE = ('body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-c
          'th{background:#eee}img{max-width:100%}')
 
 
-def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = False) -> Path:
-    """Write DIR/report.html and its PNGs atomically; returns the report's path."""
+DEFECT_COLUMNS = ('defect_id', 'km', 'new', 'passes', 'depth_m', 'depth_sd_m', 'rate_mm_per_year',
+                  'rate_se_mm_per_year', 'speed_kmh', 'level', 'next_level', 'next_limit_m',
+                  'projected', 'projected_early', 'projected_late', 'first_seen')
+
+
+def defects_table(con: duckdb.DuckDBPyConnection, line: str, track: str, limits: Limits) -> str:
+    """The line's defects as an HTML table (lengths in mm), classed by ``limits``
+    (``condition.reclass``)."""
+    cur = con.execute(f'SELECT {", ".join(DEFECT_COLUMNS)} FROM defects WHERE line = ? AND '
+                      'track = ? ORDER BY km', [line, track])
+    rows = [reclass(dict(zip(DEFECT_COLUMNS, r, strict=True)), limits) for r in cur.fetchall()]
+    heads = [c.replace('_m', '_mm') if c.endswith('_m') else c for c in DEFECT_COLUMNS]
+    head = ''.join(f'<th>{escape(c)}</th>' for c in heads)
+    body = ''.join('<tr>' + ''.join(
+        f'<td>{escape(_cell(r[c] * MM if c.endswith("_m") and r[c] is not None else r[c]))}'
+        '</td>' for c in DEFECT_COLUMNS) + '</tr>' for r in rows)
+    return f'<table><tr>{head}</tr>{body}</table>'
+
+
+def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = False,
+                 table: LimitTable | None = None, line_speed: LineSpeed | None = None) -> Path:
+    """Write DIR/report.html and its PNGs atomically, the defects classed by ``table`` (None:
+    the standard's) and ``line_speed`` (None: by the measuring speed, the fastest pass);
+    returns the report's path."""
     con = db.connect(db_path, read_only=True)
     try:
-        lines = con.execute('SELECT line, track, dx_m FROM lines ORDER BY line, track').fetchall()
+        lines = con.execute('SELECT line, track, dx_m, band FROM lines '
+                            'ORDER BY line, track').fetchall()
         with atomic_output(out_dir, overwrite) as tmp:
             tmp.mkdir()
             parts = [f'<h1>Track condition: {escape(str(db_path))}</h1>']
-            for line, track, dx in lines:
+            for line, track, dx, band in lines:
+                limits = Limits(table or en13848_table(), band, line_speed)
                 slug = _slug(line, track)
                 fused = plot_fused(tmp / f'fused_{slug}.png', con, line, track, dx)
                 trends = plot_trends(tmp / f'trends_{slug}.png', con, line, track)
-                sections = plot_segments(tmp / f'sections_{slug}.png', con, line, track)
+                sections = plot_segments(tmp / f'sections_{slug}.png', con, line, track,
+                                         limits)
                 parts += [f'<h2>Line {escape(line)}, track {escape(track)}</h2>',
                           f'<img src="{fused.name}" alt="fused profile">',
                           '<h3>Defects (depth = mean-to-peak of the band-filtered profile; '
                           'rate by weighted least squares, SE from the per-pass SDs)</h3>',
-                          _table(con, """SELECT defect_id, round(km, 4) AS km, new, passes,
-                              depth_m * 1e3 AS depth_mm, depth_sd_m * 1e3 AS depth_sd_mm,
-                              rate_mm_per_year, rate_se_mm_per_year, speed_kmh, level,
-                              next_level, next_limit_m * 1e3 AS next_limit_mm, projected,
-                              projected_early, projected_late, first_seen FROM defects
-                              WHERE line = ? AND track = ? ORDER BY km""", [line, track]),
+                          f'<p>EN 13848-5 levels: {escape(limits.basis)}; limit table '
+                          f'{escape(limits.table.name)}.</p>',
+                          defects_table(con, line, track, limits),
                           f'<img src="{trends.name}" alt="defect trends">',
                           '<h3>Standard deviation per 200 m section</h3>',
                           f'<img src="{sections.name}" alt="200 m sections">']
