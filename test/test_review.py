@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railgsa_ros.errors import ConfigError
 from railgsa_ros.review.exceedances import (
     count_by_level,
     describe_counts,
