@@ -24,12 +24,12 @@ from railgsa_ros.offline import Source
 from railgsa_ros.qos import record_qos
 from railgsa_ros.review.build import build_review
 from railgsa_ros.review.exceedances import find_exceedances
-from railgsa_ros.standards.sampling import DX_M
-from railgsa_ros.standards.en13848 import Limits, en13848_table
 from railgsa_ros.review.results import ReviewOptions
-from railgsa_ros.standards.sections import section_sd
 from railgsa_ros.review.stream import run_stream
 from railgsa_ros.scenario import run_scenario
+from railgsa_ros.standards.en13848 import Limits, en13848_table
+from railgsa_ros.standards.sampling import DX_M
+from railgsa_ros.standards.sections import section_sd
 from railgsa_ros.uncertainty import UncertaintyConfig
 from railgsa_ros.uncertainty.parameters import table3
 

@@ -252,3 +252,23 @@ def test_fleet_query_classes_by_the_table_and_line_speed_given(one_pass, capsys)
         assert row['level'] == expected, extra
         assert row['class_basis'] == (MEASURING_BASIS if '--line-speed' not in extra else
                                       Limits(TABLE, 'd1', load_line_speed(speeds)).basis)
+    out = root / 'fleet_report'
+    assert main(['fleet', 'report', '--db', str(path), '--out', str(out), '--line-speed',
+                 str(speeds)]) == 0
+    html = (out / 'report.html').read_text(encoding='utf-8')
+    assert f'line&#x27;s permitted speed ({speeds})' in html and '<td>AL</td>' in html
+
+
+def test_a_bad_limit_file_stops_the_review_with_one_line(one_pass, capsys) -> None:
+    from railgsa_ros.cli.main import main
+
+    bag, _, root = one_pass
+    bad = _write(root, 'bad.yaml', 'speed_ranges: [{up_to_kmh: 80, d1: {AL: 6, IL: 5}}]\n')
+    for extra, message in ((['--limits', str(bad)], 'expected AL < IL < IAL'),
+                           (['--limits', str(CONFIG / 'limits_en13848.yaml'), '--limit-end',
+                             'upper'], "--limit-end: applies to the standard's table"),
+                           (['--line-speed', str(bad)], 'expected a mapping with ranges')):
+        assert main(['review', str(bag), '--out', str(root / 'never'), *extra]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count('\n') == 1, err
+    assert not (root / 'never').exists()
