@@ -272,3 +272,20 @@ def test_a_bad_limit_file_stops_the_review_with_one_line(one_pass, capsys) -> No
         err = capsys.readouterr().err
         assert message in err and err.count('\n') == 1, err
     assert not (root / 'never').exists()
+
+
+def test_a_run_beyond_the_line_speed_ranges_is_warned_of_and_not_classed(one_pass,
+                                                                          capsys) -> None:
+    """Line speeds for km 0-0.3 only: the dip at km 0.50 lies outside, where no limit applies:
+    no exceedance, and one warning saying which km the run covers."""
+    bag, _, root = one_pass
+    short = _write(root, 'short.yaml', 'ranges: [{from_km: 0, to_km: 0.3, speed_kmh: 250}]\n')
+    review = _review(bag, root / 'rev_short', capsys, '--line-speed', str(short))
+    assert review['worst_defect'] is None
+    from railgsa_ros.cli.main import main
+
+    assert main(['review', str(bag), '--out', str(root / 'rev_short2'), '--no-uncertainty',
+                 '--line-speed', str(short)]) == 0
+    err = capsys.readouterr().err
+    assert f'{short} only km 0-0.3: no limit applies outside' in err and 'the run covers km 0' \
+        in err

@@ -211,6 +211,21 @@ def min_probability(value: float) -> float:
     return value
 
 
+def outside_line_speed(review: Any) -> str:
+    """'' when --line-speed covers the run's km-posts, else what part of the run it leaves out
+    (no limit applies there)."""
+    speeds = review.limits.line_speed
+    if speeds is None:
+        return ''
+    ref, run = review.location.reference, review.run
+    start, end = sorted(float(ref.km(c)) for c in (run.first[1], run.last[1]))
+    first, last = speeds.span_km
+    if first <= start and end <= last:
+        return ''
+    return (f'the run covers km {start:.3f}-{end:.3f}, {speeds.name} only km {first:g}-{last:g}: '
+            'no limit applies outside')
+
+
 def run(args: argparse.Namespace) -> int:
     """Build the review, write the report, print where it is and the headline numbers."""
     from railgsa_ros.fileio import refuse_overlap
@@ -233,6 +248,9 @@ def run(args: argparse.Namespace) -> int:
     for finding in review.run.findings:
         if finding.level:
             print(f'warning: {finding.message}', file=sys.stderr)
+    outside = outside_line_speed(review)
+    if outside:
+        print(f'warning: {outside}', file=sys.stderr)
     if args.json:
         import json
 
