@@ -199,15 +199,18 @@ def _review(bag: Path, out: Path, capsys, *extra: str) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
-def _fleet(bag: Path, db_path: Path, *extra: str) -> list[tuple]:
+def _fleet(bags: list[Path], db_path: Path, *extra: str) -> list[tuple]:
+    """(level, depth (m), km) of the defects within 5 m of the dip at km 0.504 after
+    ``railgsa fleet ingest`` of ``bags`` into a new database."""
     from railgsa_ros.cli.main import main
     from railgsa_ros.fleet import db
 
-    assert main(['fleet', 'ingest', str(bag), '--db', str(db_path), '--line', 'L',
+    assert main(['fleet', 'ingest', *map(str, bags), '--db', str(db_path), '--line', 'L',
                  '--workers', '1', *extra]) == 0
     con = db.connect(db_path, read_only=True)
     try:
-        return con.execute('SELECT level, depth_m, km FROM defects').fetchall()
+        return con.execute('SELECT level, depth_m, km FROM defects WHERE abs(km - 0.504) < '
+                           '0.005').fetchall()
     finally:
         con.close()
 
@@ -221,14 +224,14 @@ def test_one_defect_gets_one_class_in_the_review_and_the_fleet(one_pass, capsys)
     worst = review['worst_defect']
     assert review['limits']['basis'].endswith(f'({speeds})')
     assert worst['level'] == 'AL' and abs(worst['km'] - 0.504) < 0.005
-    (level, depth, km), = _fleet(bag, root / 'line.duckdb', '--line-speed', str(speeds))
+    (level, depth, km), = _fleet([bag], root / 'line.duckdb', '--line-speed', str(speeds))
     assert level == 'AL' and abs(km - worst['km']) < 0.002
     assert abs(depth * 1e3 - abs(worst['depth_mm'])) < 0.1
     assert 4.0 < depth * 1e3 < 6.0  # between AL and IL at 250 km/h, below 8 mm at 90 km/h
 
     plain = _review(bag, root / 'rev_measured', capsys)
     assert plain['worst_defect'] is None and plain['limits']['basis'] == MEASURING_BASIS
-    (level, _, _), = _fleet(bag, root / 'measured.duckdb')
+    (level, _, _), = _fleet([bag], root / 'measured.duckdb')
     assert level == ''
 
 
@@ -240,7 +243,7 @@ def test_fleet_query_classes_by_the_table_and_line_speed_given(one_pass, capsys)
 
     bag, speeds, root = one_pass
     path = root / 'query.duckdb'
-    _fleet(bag, path)
+    _fleet([bag], path)
     strict = _write(root, 'strict.yaml', 'name: strict\nspeed_ranges:\n'
                     '  - {up_to_kmh: 300, d1: {AL: 3, IL: 4.5, IAL: 9}}\n')
     capsys.readouterr()
@@ -289,3 +292,42 @@ def test_a_run_beyond_the_line_speed_ranges_is_warned_of_and_not_classed(one_pas
     err = capsys.readouterr().err
     assert f'{short} only km 0-0.3: no limit applies outside' in err and 'the run covers km 0' \
         in err
+
+
+@pytest.fixture(scope='module')
+def two_passes(tmp_path_factory):
+    """The issue's case: a 90 km/h and, a day later, a 130 km/h pass over a line with a 10 mm,
+    8 m dip at 500 m (about 7 mm in D1) and a line speed of 250 km/h (AL 4, IL 6 mm); at
+    90 km/h the AL is 8 mm, at 130 km/h 6 mm. The line has a weak random profile (SD 0.3 mm)
+    for the fleet to align the passes on."""
+    from railgsa_ros.bag import write_run
+    from railgsa_ros.scenario import DEFAULT_START_NS, run_scenario
+    from railgsa_ros.track import save_csv
+
+    root = tmp_path_factory.mktemp('two_passes')
+    x = np.arange(0.0, 1200.0, 0.05)
+    rough = np.convolve(np.random.default_rng(3).standard_normal(x.size + 100),
+                        np.hanning(100), 'valid')[:x.size]
+    save_csv(root / 'line.csv', x, 0.3e-3 * rough / rough.std())
+    bags = []
+    for i, (speed, duration) in enumerate(((25.0, 40.0), (36.0, 28.0))):
+        run = run_scenario(f'file:{root}/line.csv', speed, duration, 200.0, 'adxl355', seed=i,
+                           defects='dip@500:len=8:depth=0.010',
+                           start_ns=DEFAULT_START_NS + i * 86400 * 10**9)
+        bags.append(write_run(root / f'pass{i}.mcap', run))
+    speeds = _write(root, 'speeds.yaml', 'ranges: [{from_km: 0, to_km: 2, speed_kmh: 250}]\n')
+    return bags, speeds, root
+
+
+def test_the_slow_pass_and_the_fleet_agree_once_the_line_speed_is_given(two_passes,
+                                                                         capsys) -> None:
+    """Without a line speed the review of the 90 km/h pass finds nothing (7 mm < AL 8 mm) while
+    the fleet, classing by its fastest pass (130 km/h: AL 6 mm), says AL: the disagreement the
+    issue reported. With the line's 250 km/h both say IL."""
+    bags, speeds, root = two_passes
+    slow = _review(bags[0], root / 'slow', capsys)
+    (level, depth, _), = _fleet(bags, root / 'measured.duckdb')
+    assert slow['worst_defect'] is None and level == 'AL' and 6.0 < depth * 1e3 < 8.0
+    slow = _review(bags[0], root / 'slow_line', capsys, '--line-speed', str(speeds))
+    (level, _, _), = _fleet(bags, root / 'line.duckdb', '--line-speed', str(speeds))
+    assert slow['worst_defect']['level'] == 'IL' and level == 'IL'
