@@ -43,6 +43,38 @@ def _coerce_number(value: Any) -> Any:
     return value
 
 
+def check_parameter(name: str, value: Any, unit: str, bounds: tuple[float, float]) -> float:
+    """``value`` as a float: a positive finite number (numeric strings accepted) inside the
+    inclusive ``bounds``; else ConfigError naming ``name`` (e.g. 'vehicle.k_s') and ``unit``."""
+    value = _coerce_number(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f'{name}: expected a number in {unit}, got {value!r}')
+    try:
+        number = float(value)
+    except OverflowError:  # an int beyond the float range
+        number = math.inf
+    if not math.isfinite(number) or number <= 0:
+        raise ConfigError(f'{name}: must be a positive finite number in {unit}, got {number!r}')
+    low, high = bounds
+    if not low <= number <= high:
+        raise ConfigError(f'{name}: {number:g} {unit} is outside the physical range '
+                          f'[{low:g}, {high:g}] {unit}')
+    return number
+
+
+def check_fields(data: Any, names: tuple[str, ...], source: str) -> None:
+    """ConfigError naming ``source`` unless ``data`` is a mapping with exactly ``names``."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f'{source}: expected a mapping of {", ".join(names)}')
+    unknown = set(data) - set(names)
+    if unknown:
+        raise ConfigError(f'{source}: unknown field(s) {key_list(unknown)}; '
+                          f'expected {", ".join(names)}')
+    missing = [n for n in names if n not in data]
+    if missing:
+        raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
+
+
 @dataclass(frozen=True)
 class VehicleParams:
     """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1. Each must lie
@@ -56,23 +88,9 @@ class VehicleParams:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = _coerce_number(getattr(self, f.name))
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f'vehicle.{f.name}: expected a number in {PARAM_UNITS[f.name]}, '
-                                  f'got {value!r}')
-            try:
-                number = float(value)
-            except OverflowError:  # an int beyond the float range
-                number = math.inf
-            if not math.isfinite(number) or number <= 0:
-                raise ConfigError(f'vehicle.{f.name}: must be a positive finite number in '
-                                  f'{PARAM_UNITS[f.name]}, got {number!r}')
-            low, high = PARAM_BOUNDS[f.name]
-            if not low <= number <= high:
-                unit = PARAM_UNITS[f.name]
-                raise ConfigError(f'vehicle.{f.name}: {number:g} {unit} is outside the physical '
-                                  f'range [{low:g}, {high:g}] {unit}')
-            object.__setattr__(self, f.name, number)
+            object.__setattr__(self, f.name, check_parameter(
+                f'vehicle.{f.name}', getattr(self, f.name), PARAM_UNITS[f.name],
+                PARAM_BOUNDS[f.name]))
 
     def as_array(self) -> np.ndarray:
         """Return the parameters as a float array of shape (5,), ordered as PARAM_NAMES."""
@@ -85,15 +103,7 @@ class VehicleParams:
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> VehicleParams:
         """Build from a mapping with every field present; unknown or missing keys are errors."""
-        if not isinstance(data, Mapping):
-            raise ConfigError(f'{source}: expected a mapping of {", ".join(PARAM_NAMES)}')
-        unknown = set(data) - set(PARAM_NAMES)
-        if unknown:
-            raise ConfigError(f'{source}: unknown field(s) {key_list(unknown)}; '
-                              f'expected {", ".join(PARAM_NAMES)}')
-        missing = [n for n in PARAM_NAMES if n not in data]
-        if missing:
-            raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
+        check_fields(data, PARAM_NAMES, source)
         return cls(**{n: data[n] for n in PARAM_NAMES})
 
 
