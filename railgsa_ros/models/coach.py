@@ -129,7 +129,7 @@ class CoachGeometry:
             if not isinstance(imu.name, str) or not re.fullmatch(r'[A-Za-z0-9_]+', imu.name):
                 raise ConfigError(f'imus[{i}].name: expected letters, digits or _, '
                                   f'got {imu.name!r}')
-            if names.count(imu.name) > 1:
+            if imu.name in names[:i]:
                 raise ConfigError(f'imus[{i}].name: {imu.name!r} is given twice')
             x = imu.x_m
             if isinstance(x, bool) or not isinstance(x, (int, float)) or not abs(x) <= reach:
