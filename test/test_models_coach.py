@@ -187,3 +187,18 @@ def test_geometry_refuses_a_wheelbase_longer_than_the_bogie_spacing():
         CoachGeometry(bogie_spacing_m=4.0, wheelbase_m=4.0)
     with pytest.raises(ConfigError, match=r"imus\[1\]\.name: 'a' is given twice"):
         CoachGeometry(imus=(ImuPosition('a', 0.0), ImuPosition('a', 1.0)))
+
+
+def test_listed_null_wavelengths_are_zeros_of_each_channel():
+    v = 25.0
+    peak = np.abs(MODEL.track_response(MODEL.theta, np.linspace(0.3, 25, 200), v)).max(-1)
+    longest = {'accel_z': 2 * L, 'pitch_rate': L, 'accel_z:front': 2 * A, 'accel_z:rear': 2 * A}
+    for c, channel in enumerate(MODEL.channels):  # accel_z: the car-centre IMU
+        waves = MODEL.null_wavelengths(channel)
+        assert waves[0] == longest[channel] and waves[-1] >= 1.0
+        h = MODEL.track_response(MODEL.theta, v / waves, v)[c]
+        np.testing.assert_array_less(np.abs(h), 1e-8 * peak[c])
+    assert 2 * L / 3 in MODEL.null_wavelengths('accel_z')
+    assert 2 * L / 3 not in MODEL.null_wavelengths('accel_z:rear')
+    with pytest.raises(ValueError, match='not an acceleration channel'):
+        MODEL.null_wavelengths('accel_z:roof')
