@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -75,30 +75,43 @@ def check_fields(data: Any, names: tuple[str, ...], source: str) -> None:
         raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
 
 
+class ParamSet:
+    """Base of the frozen parameter dataclasses (SI units): every field is checked against
+    ``UNITS`` and ``BOUNDS`` (``check_parameter``: ConfigError naming 'vehicle.<field>')."""
+
+    NAMES: ClassVar[tuple[str, ...]]
+    UNITS: ClassVar[dict[str, str]]
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]]
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            object.__setattr__(self, f.name, check_parameter(
+                f'vehicle.{f.name}', getattr(self, f.name), self.UNITS[f.name],
+                self.BOUNDS[f.name]))
+
+    def as_array(self) -> np.ndarray:
+        """Return the parameters as a float array of shape (n,), ordered as NAMES."""
+        return np.array([getattr(self, n) for n in self.NAMES])
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the parameters as a plain dict."""
+        return asdict(self)  # type: ignore[call-overload]
+
+
 @dataclass(frozen=True)
-class VehicleParams:
+class VehicleParams(ParamSet):
     """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1. Each must lie
     in ``PARAM_BOUNDS`` (ConfigError naming the field otherwise)."""
+
+    NAMES: ClassVar[tuple[str, ...]] = PARAM_NAMES
+    UNITS: ClassVar[dict[str, str]] = PARAM_UNITS
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]] = PARAM_BOUNDS
 
     m_s: float = 9875.0
     m_us: float = 1100.0
     k_s: float = 2.13e6
     k_us: float = 1.42e8
     c: float = 1.2e5
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            object.__setattr__(self, f.name, check_parameter(
-                f'vehicle.{f.name}', getattr(self, f.name), PARAM_UNITS[f.name],
-                PARAM_BOUNDS[f.name]))
-
-    def as_array(self) -> np.ndarray:
-        """Return the parameters as a float array of shape (5,), ordered as PARAM_NAMES."""
-        return np.array([getattr(self, n) for n in PARAM_NAMES])
-
-    def as_dict(self) -> dict[str, float]:
-        """Return the parameters as a plain dict."""
-        return asdict(self)
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> VehicleParams:

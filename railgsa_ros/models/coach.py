@@ -23,17 +23,17 @@ State x = [q, q'] (20); outputs: the car-body acceleration at each IMU, z_c'' - 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 import math
 import re
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from railgsa_ros.config import key_list
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.models import ModeInfo, delayed_sum
-from railgsa_ros.vehicle import check_fields, check_parameter
+from railgsa_ros.vehicle import ParamSet, check_fields, check_parameter
 
 PARAM_NAMES = ('m_c', 'J_c', 'm_b', 'J_b', 'm_w', 'k_p', 'c_p', 'k_s', 'c_s', 'k_h')
 PARAM_UNITS = {'m_c': 'kg', 'J_c': 'kg*m^2', 'm_b': 'kg', 'J_b': 'kg*m^2', 'm_w': 'kg',
@@ -63,10 +63,14 @@ SOLVE_BATCH = 50_000  # complex 10x10 systems solved at once (about 80 MB)
 
 
 @dataclass(frozen=True)
-class CoachParams:
+class CoachParams(ParamSet):
     """Coach parameters (SI units): the Manchester benchmark passenger coach (Iwnicki 1998,
     vehicle 1; docs/vehicles.md) with a contact stiffness of 1e9 N/m per wheel. Each must lie
     in ``PARAM_BOUNDS`` (ConfigError naming the field otherwise)."""
+
+    NAMES: ClassVar[tuple[str, ...]] = PARAM_NAMES
+    UNITS: ClassVar[dict[str, str]] = PARAM_UNITS
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]] = PARAM_BOUNDS
 
     m_c: float = 32000.0
     J_c: float = 1.97e6
@@ -78,20 +82,6 @@ class CoachParams:
     k_s: float = 4.3e5
     c_s: float = 2.0e4
     k_h: float = 1.0e9
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            object.__setattr__(self, f.name, check_parameter(
-                f'vehicle.{f.name}', getattr(self, f.name), PARAM_UNITS[f.name],
-                PARAM_BOUNDS[f.name]))
-
-    def as_array(self) -> np.ndarray:
-        """The parameters as a float array (10,), ordered as PARAM_NAMES."""
-        return np.array([getattr(self, n) for n in PARAM_NAMES])
-
-    def as_dict(self) -> dict[str, float]:
-        """The parameters as a plain dict."""
-        return asdict(self)
 
 
 @dataclass(frozen=True)
