@@ -98,8 +98,8 @@ def test_gyro_in_the_bag_present_with_a_gyro_and_absent_without(tmp_path):
 
 def test_further_imus_get_their_own_topics_in_the_bag(tmp_path):
     coach = tmp_path / 'coach2.yaml'
-    coach.write_text(COACH_FILE.read_text().replace(
-        '    x_m: 9.5 ', '    x_m: 9.5\n  - {name: centre, x_m: 0.0}\n  - {name: rear, x_m: -9.5} '))
+    further = '\n  - {name: centre, x_m: 0.0}\n  - {name: rear, x_m: -9.5} '
+    coach.write_text(COACH_FILE.read_text().replace('    x_m: 9.5 ', '    x_m: 9.5' + further))
     _, run = simulate_bag(tmp_path / 'bag', vehicle=str(coach), sensor='adxl355', duration=1.0)
     assert run.imu_names == ('centre', 'rear') and run.imu_gyro is None
     for k, name in enumerate(run.imu_names):
