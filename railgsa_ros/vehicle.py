@@ -123,13 +123,22 @@ class VehicleParams(ParamSet):
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Load ``vehicle:`` parameters from a YAML file such as ``config/vehicle.yaml``."""
     doc = load_yaml(path)
-    section = doc.get('vehicle') if isinstance(doc, dict) else None
-    if section is None:
-        raise ConfigError(f'{path}: missing top-level "vehicle:" section')
     try:
-        return VehicleParams.from_mapping(section)
+        return vehicle_from_doc(doc)
     except ConfigError as exc:
         raise ConfigError(f'{path}: {exc}') from None
+
+
+def vehicle_from_doc(doc: Any) -> VehicleParams:
+    """The quarter car of a parsed vehicle file: its ``vehicle:`` section. A file of another
+    model (``model: coach``) is refused by name (ConfigError without the file name)."""
+    if isinstance(doc, dict) and doc.get('model', 'quarter_car') != 'quarter_car':
+        raise ConfigError(f'model: {doc["model"]!r}: this entry point takes a quarter car '
+                          '(vehicle: m_s, m_us, k_s, k_us, c; docs/vehicles.md)')
+    section = doc.get('vehicle') if isinstance(doc, dict) else None
+    if section is None:
+        raise ConfigError('missing top-level "vehicle:" section')
+    return VehicleParams.from_mapping(section)
 
 
 def as_theta(params: VehicleParams | np.ndarray | Mapping[str, float]) -> np.ndarray:
