@@ -279,3 +279,13 @@ def test_bode_of_a_coach_file_prints_its_modes_delays_and_nulls(tmp_path: Path) 
     bad = railgsa('bode', '--vehicle', str(coach_file), '--speed', '0',
                   '--out', str(tmp_path / 'x.png'))
     assert bad.returncode == 2 and '--speed: must be a positive number' in bad.stderr
+
+
+def test_simulate_a_coach_file_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    coach = Path(__file__).resolve().parents[1] / 'config' / 'vehicles' / 'coach.yaml'
+    assert main(['simulate', '--vehicle', str(coach), '--sensor', 'bmi088', '--duration', '1',
+                 '--out', str(tmp_path / 'bag')]) == 0
+    out = capsys.readouterr().out
+    assert '/imu/data' in out and 'truth chainage 21.6-' in out  # every wheelset on the track
+    stream = read_imu(tmp_path / 'bag')
+    assert stream.accel.shape == (400, 3)
