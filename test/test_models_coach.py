@@ -231,3 +231,35 @@ def test_direct_solve_fallback_equals_the_modal_sum(monkeypatch):
     peak = np.abs(solved).max(axis=-1, keepdims=True)
     assert np.max(np.abs(modal - solved) / peak) < 1e-9
     assert not np.array_equal(modal, solved)  # two computations, one answer
+
+
+def test_stiffness_and_damping_matrices_equal_the_textbook_equations():
+    # written out by hand from Newton's and Euler's equations of the ten bodies (secondary at
+    # x = +-h, h = L/2; wheelsets at +-b about their bogie, b = a/2; nose-down pitch positive)
+    k_s, c_s, k_p, c_p, k_h = (MODEL.theta[PARAM_NAMES.index(n)]
+                               for n in ('k_s', 'c_s', 'k_p', 'c_p', 'k_h'))
+    h, b = L / 2, A / 2
+
+    def textbook(ks, kp, kh):
+        k = np.zeros((10, 10))
+        k[0, 0] = 4 * ks  # car bounce on four secondary sides
+        k[1, 1] = 4 * ks * h ** 2  # car pitch
+        for i, x in enumerate((h, -h)):
+            zb, tb = 2 + 2 * i, 3 + 2 * i
+            k[0, zb] = k[zb, 0] = -2 * ks
+            k[1, zb] = k[zb, 1] = 2 * ks * x
+            k[zb, zb] = 2 * ks + 4 * kp
+            k[tb, tb] = 4 * kp * b ** 2
+            for j, arm in enumerate((b, -b)):
+                zw = 6 + 2 * i + j
+                k[zb, zw] = k[zw, zb] = -2 * kp
+                k[tb, zw] = k[zw, tb] = 2 * kp * arm
+                k[zw, zw] = 2 * kp + 2 * kh
+        return k
+
+    mass, c, k, k_u = MODEL.matrices(MODEL.theta)
+    np.testing.assert_allclose(k, textbook(k_s, k_p, k_h), rtol=1e-12, atol=1e-6)
+    np.testing.assert_allclose(c, textbook(c_s, c_p, 0.0), rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(k_u[6:], 2 * k_h * np.eye(4))
+    np.testing.assert_array_equal(k_u[:6], 0.0)
+    np.testing.assert_array_equal(mass, MODEL.theta[[0, 1, 2, 3, 2, 3, 4, 4, 4, 4]])
