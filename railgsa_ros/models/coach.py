@@ -229,12 +229,13 @@ class CoachModel:
         theta = _theta(theta)
         el = self._elements
 
-        def scaled(name: str, index: int) -> np.ndarray:
-            return 2.0 * theta[..., index, None, None] * el[name]
+        def scaled(element: str, param: str) -> np.ndarray:
+            """2 x the parameter (two axle boxes, sides or wheels) x the element's matrix."""
+            return 2.0 * theta[..., PARAM_NAMES.index(param), None, None] * el[element]
 
-        k = scaled('secondary', 7) + scaled('primary', 5) + scaled('contact', 9)
-        c = scaled('secondary', 8) + scaled('primary', 6)
-        return theta[..., MASS_INDEX], c, k, scaled('input', 9)
+        k = scaled('secondary', 'k_s') + scaled('primary', 'k_p') + scaled('contact', 'k_h')
+        c = scaled('secondary', 'c_s') + scaled('primary', 'c_p')
+        return theta[..., MASS_INDEX], c, k, scaled('input', 'k_h')
 
     def state_space(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray]:
