@@ -115,15 +115,13 @@ def load_model(path_or_doc: str | Path | Mapping[str, Any]) -> VehicleModel:
 def as_model(vehicle: Any) -> VehicleModel:
     """A model from what the entry points accept: a model, a vehicle file path, VehicleParams
     or a quarter-car theta (5,) (the paper's Table 1 for None)."""
-    if vehicle is None or (not isinstance(vehicle, (str, Path)) and not hasattr(vehicle, 'kind')):
-        from railgsa_ros.models.quarter_car import QuarterCarModel
-        from railgsa_ros.vehicle import VehicleParams, as_theta
-
-        if vehicle is None:
-            return QuarterCarModel(VehicleParams())
-        if isinstance(vehicle, VehicleParams):
-            return QuarterCarModel(vehicle)
-        return QuarterCarModel(VehicleParams(*as_theta(vehicle).tolist()))
     if isinstance(vehicle, (str, Path)):
         return load_model(vehicle)
-    return vehicle
+    if hasattr(vehicle, 'kind'):
+        return vehicle
+    from railgsa_ros.models.quarter_car import QuarterCarModel
+    from railgsa_ros.vehicle import VehicleParams, as_theta
+
+    if vehicle is None or isinstance(vehicle, VehicleParams):
+        return QuarterCarModel(vehicle)
+    return QuarterCarModel(VehicleParams(*as_theta(vehicle).tolist()))
