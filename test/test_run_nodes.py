@@ -247,7 +247,7 @@ def _kw(call: ast.Call) -> dict[str, ast.expr]:
 
 
 def test_launch_file_starts_both_nodes_from_one_params_file(monkeypatch: Any) -> None:
-    from test_packaging import setup_kwargs
+    from setup_helpers import setup_kwargs
 
     tree = ast.parse(LAUNCH.read_text())
     assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description'
