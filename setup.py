@@ -2,10 +2,10 @@
 
 The default install is what the nodes need on a train (numpy, scipy, pyyaml and the bag
 libraries); the offline tools that draw, store or spread work come as extras: ``review``
-(matplotlib: ``railgsa review``, ``bode``, ``gsa --plot``, ``demo``; tqdm: the progress bar
-of ``invert``), ``fleet`` (the
-review's plus DuckDB and Dask: ``railgsa fleet``), ``ros`` (rclpy from PyPI wheels), ``dev``
-(the test and lint tools), ``bench`` (the benchmarks' reference libraries).
+(matplotlib: ``railgsa review``, ``bode``, ``gsa --plot``, ``demo``; tqdm: the progress bar of
+``invert``), ``fleet`` (the review's plus DuckDB and Dask: ``railgsa fleet``), ``ros`` (rclpy
+from PyPI wheels), ``dev`` (the test and lint tools), ``bench`` (the benchmarks' reference
+libraries).
 """
 
 from glob import glob
