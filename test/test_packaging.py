@@ -30,6 +30,7 @@ THIRD_PARTY = {
     'zstandard': ('zstandard', None, None),
     'threadpoolctl': ('threadpoolctl', None, None),
     'matplotlib': ('matplotlib', 'review', None),
+    'tqdm': ('tqdm', 'review', None),
     'duckdb': ('duckdb', 'fleet', None),
     'dask': ('dask[distributed]', 'fleet', None),
 }
