@@ -127,16 +127,12 @@ def rate(stamps_ns: np.ndarray) -> Rate | None:
                 1e9 / float(forward.min()), int(np.count_nonzero(dt <= 0)))
 
 
-def gaps(stamps_ns: np.ndarray) -> Gaps | None:
-    """The intervals of a stamp series longer than GAP_PERIODS median periods (None without a
-    rate)."""
+def gaps(stamps_ns: np.ndarray, median_hz: float) -> Gaps:
+    """The intervals of a stamp series longer than GAP_PERIODS median periods."""
     import numpy as np
 
     dt = np.diff(stamps_ns)
-    forward = dt[dt > 0]
-    if forward.size < 2:
-        return None
-    threshold = GAP_PERIODS * float(np.median(forward))
+    threshold = GAP_PERIODS * 1e9 / median_hz
     over = np.flatnonzero(dt > threshold)
     if over.size == 0:
         return Gaps(threshold / 1e9, 0)
@@ -170,8 +166,10 @@ def topic_info(topic: str, msgtype: str, log_ns: np.ndarray, stamps_ns: np.ndarr
         stamps_ns, source = log_ns, 'log_time'
     first, last = (iso(int(stamps_ns.min())), iso(int(stamps_ns.max()))) if stamps_ns.size \
         else (None, None)
-    return Topic(topic, msgtype, int(log_ns.size), source, first, last, rate(stamps_ns),
-                 gaps(stamps_ns) if msgtype == IMU_TYPE else None, fix)
+    measured = rate(stamps_ns)
+    return Topic(topic, msgtype, int(log_ns.size), source, first, last, measured,
+                 gaps(stamps_ns, measured.median_hz) if measured and msgtype == IMU_TYPE else None,
+                 fix)
 
 
 def read_topics(path: Path) -> tuple[list[Topic], tuple[int, int] | None]:
