@@ -21,6 +21,14 @@ the shift (0.1 m made k_s 8 SD and c 16 SD off; measured). The reference is read
 cubic spline of its band (a linear interpolation of the DX_M grid left ~1e-6 m, a third of the
 noise-free residual, for k_us to absorb).
 
+The sensor delay tau (the chip filter's group delay, ``InversionConfig.sensor_delay_s``) can be
+a third nuisance parameter (``fit_delay``, prior std DELAY_PRIOR_S around the configured delay):
+the output advanced by tau more moves by v tau along the track, so its Jacobian column is
+v du/dx of the reconstruction. At constant speed that column is -v times the registration's:
+a delay and a registration shift are the same thing there, and only speed changes or a
+registered reference (a small ``shift_prior_m``) tell them apart. ``Calibration.delay_shift_corr``
+says how far they were told apart (near -1 or +1: not at all; the prior then decides).
+
 Model discrepancy (Kennedy-O'Hagan): even the true parameters leave an error the band's terms do
 not hold (e.g. the chainage shift of a drifting sensor clock). ``discrepancy_std`` measures it on
 the same stretch from the band of the calibrated run (posterior law + sensor terms): the mean
@@ -55,6 +63,7 @@ DX_M = 0.25  # grid of the band-passed reference, m
 MARGIN_M = 50.0  # left out at both ends of the stretch (filter edges), m
 MIN_CORRELATION = 0.8  # reference and reconstruction must agree this well before calibration
 SHIFT_PRIOR_M = 2.0  # prior std of the reference's chainage shift (its registration), m
+DELAY_PRIOR_S = 0.02  # prior std of a fitted sensor delay, s (chip filters: 0.4-80 ms)
 
 
 @dataclass(frozen=True)
@@ -74,6 +83,9 @@ class Calibration:
     points: int
     shift_m: float = 0.0  #: fitted chainage shift of the reference (its registration), m
     shift_sd_m: float = 0.0  #: its posterior std, m
+    delay_s: float = float('nan')  #: fitted sensor delay, s (NaN: not fitted)
+    delay_sd_s: float = float('nan')  #: its posterior std, s
+    delay_shift_corr: float = float('nan')  #: posterior correlation of delay and shift
 
     def vehicle(self) -> VehicleParams:
         """The calibrated vehicle (posterior mean)."""
@@ -112,11 +124,14 @@ def _correlation_time(resid: np.ndarray) -> float:
 def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
               reference: tuple[np.ndarray, np.ndarray], config: InversionConfig,
               vehicle: VehicleParams, prior: Mapping[str, Distribution],
-              names: tuple[str, ...] = IDENTIFIABLE) -> Calibration:
+              names: tuple[str, ...] = IDENTIFIABLE, fit_delay: bool = False,
+              shift_prior_m: float = SHIFT_PRIOR_M) -> Calibration:
     """Calibrate ``names`` on the stretch covered by ``reference`` = (chainage (R,) m, u (R,) m),
     chainage counted from the first IMU sample (the pipeline's). IMU stamps (T,) ns, upward
     specific force (T,) m/s^2, speed (T,) m/s; prior: distributions of ``names`` (their mean
-    and std define the Gaussian prior of the relative parameters)."""
+    and std define the Gaussian prior of the relative parameters); ``fit_delay``: also fit the
+    sensor delay (s, >= 0) from ``config.sensor_delay_s``; ``shift_prior_m``: prior std of the
+    reference's registration (m)."""
     missing = [n for n in names if n not in prior]
     if missing or not names:
         raise InputError(f'calibrate: no prior for {", ".join(missing) or "any parameter"}')
@@ -127,15 +142,19 @@ def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
     cols = [PARAM_NAMES.index(n) for n in names]
     n = len(names)
     means = np.array([prior[k].mean() for k in names])
-    # q = (ln(theta / nominal) of the names, the reference's shift m), its Gaussian prior
-    q0 = np.append(np.log(means / nominal[cols]), 0.0)
-    prior_prec = np.diag(np.append((means / np.array([prior[k].std() for k in names])) ** 2,
-                                   SHIFT_PRIOR_M ** -2))
+    # q = (ln(theta / nominal) of the names, the reference's shift m[, the delay s]), its prior
+    q0 = np.append(np.log(means / nominal[cols]), [0.0, config.sensor_delay_s][:1 + fit_delay])
+    prior_prec = np.diag(np.concatenate([
+        (means / np.array([prior[k].std() for k in names])) ** 2,
+        [shift_prior_m ** -2, DELAY_PRIOR_S ** -2][:1 + fit_delay]]))
     q = q0.copy()
     for it in range(ITERATIONS + 1):
         thetas = np.tile(nominal, (n + 1, 1))
         thetas[:, cols] = nominal[cols] * np.exp(q[:n])
         thetas[1:, cols] *= np.exp(np.eye(n) * STEP)
+        if fit_delay:
+            q[n + 1] = max(q[n + 1], 0.0)  # a causal filter delays
+            config = config.with_(sensor_delay_s=float(q[n + 1]))
         out = _bank(stamps_ns, acc_z, speed_mps, config, thetas)
         keep = ((out.chainage_m > x_ref[0] + MARGIN_M) & (out.chainage_m < x_ref[-1] - MARGIN_M)
                 & np.all(np.isfinite(out.u_m), axis=0) & (out.quality != Quality.INVALID))
@@ -153,6 +172,9 @@ def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
                                  f'(correlation {corr:.2f} < {MIN_CORRELATION}); check the '
                                  'chainage offset')
         jac = np.column_stack([(u[1:] - u[0]).T / STEP, -slope(at)])  # (N, n + 1)
+        if fit_delay:  # advanced tau more, the output moves v tau along the track
+            v = np.interp(out.stamps_ns[keep], stamps_ns, np.abs(speed_mps))
+            jac = np.column_stack([jac, v * np.gradient(u[0], out.chainage_m[keep])])
         s2 = np.mean(resid ** 2) * _correlation_time(resid)
         info = jac.T @ jac / s2
         hess = info + prior_prec
@@ -164,9 +186,14 @@ def calibrate(stamps_ns: np.ndarray, acc_z: np.ndarray, speed_mps: np.ndarray,
     mean = nominal[cols] * np.exp(q[:n])
     theta = nominal.copy()
     theta[cols] = mean
+    delay = {}
+    if fit_delay:
+        sd = np.sqrt(np.diag(cov_q)[n:])
+        delay = {'delay_s': float(q[n + 1]), 'delay_sd_s': float(sd[1]),
+                 'delay_shift_corr': float(cov_q[n, n + 1] / (sd[0] * sd[1]))}
     return Calibration(tuple(names), mean, cov_q[:n, :n] * np.outer(mean, mean), theta, before,
                        float(np.sqrt(np.mean(resid ** 2))), float(np.linalg.cond(info[:n, :n])),
-                       corr, int(keep.sum()), float(q[n]), float(np.sqrt(cov_q[n, n])))
+                       corr, int(keep.sum()), float(q[n]), float(np.sqrt(cov_q[n, n])), **delay)
 
 
 def discrepancy_std(band: Band, reference: tuple[np.ndarray, np.ndarray], config: InversionConfig,

@@ -1,8 +1,11 @@
 """MEMS car-body accelerometer model: specific force in ``imu_link`` as REP 145 defines it.
 
 The chain per axis, in order (rail_domain.md section 4, "simulation recipe"):
-white noise at the simulation rate -> linear-phase anti-alias FIR and resampling to the output rate
-(polyphase, delay compensated, ``MemsStream``) -> + gravity (+g on z at rest, z up) ->
+white noise at the simulation rate -> the chip's causal low-pass (a Butterworth at the
+datasheet's -3 dB cut-off, ``chip_cutoff_hz``; it delays the signal as the chip does; none in
+the delay-free models ``adxl355`` and ``bmi088``) -> linear-phase anti-alias FIR and resampling
+to the output rate (polyphase, delay compensated, ``MemsStream``) -> + gravity (+g on z at rest,
+z up) ->
 scale factor -> + bias (turn-on + random walk) -> saturation at the range -> quantisation to the
 LSB; then stamps with clock drift and jitter, and Gilbert-Elliott dropout bursts. Every effect is
 off when its field is 0 (range: inf), and everything random comes from one seed. ``MemsStream``
@@ -61,6 +64,8 @@ class ImuSpec:
     gyro_bias_rw: float = 0.0  # gyro bias random walk, (rad/s)/sqrt(s)
     gyro_lsb: float = 0.0  # gyro quantisation step, rad/s (0: none)
     gyro_range: float = math.inf  # gyro saturation at +-range, rad/s
+    chip_cutoff_hz: float = 0.0  # -3 dB cut-off of the chip's causal low-pass, Hz (0: none)
+    chip_order: float = 4.0  # its order (a Butterworth: datasheets give no order, [M])
 
     def __post_init__(self) -> None:
         if not isinstance(self.gyro, bool):
@@ -89,6 +94,8 @@ class ImuSpec:
             'dropout_fraction': 0 <= self.dropout_fraction < 1,
             'dropout_burst_s': self.dropout_burst_s > 0,
             'bias': all(math.isfinite(b) for b in bias),
+            'chip_cutoff_hz': 0 <= self.chip_cutoff_hz < self.output_rate_hz / 2,
+            'chip_order': self.chip_order in range(1, 9),
         }
         for name in ('noise_density', 'bias_rw', 'gravity', 'lsb', 'stamp_jitter_s',
                      'gyro_noise_density', 'gyro_bias_rw', 'gyro_lsb'):
@@ -135,19 +142,36 @@ PRESETS: dict[str, ImuSpec] = {
                       gyro=True, gyro_noise_density=0.014 * DEG, gyro_bias=0.5 * DEG,
                       gyro_bias_rw=1e-4, gyro_lsb=125 * DEG / 32768, gyro_range=125 * DEG),
 }
+SETTING_ANTIALIAS_RATIO = 0.45  # with a chip filter the FIR only guards the decimation
+
+
+def setting_spec(name: str) -> ImuSpec:
+    """The chip at a datasheet setting (``datasheets``: ``adxl355@1000Hz``, ``bmi088@400Hz``,
+    ``bmi088@400Hz-osr2``): the chip's preset at that output rate, its causal low-pass at the
+    datasheet's cut-off, so that the simulated bag is delayed as the chip's is."""
+    from railgsa_ros.datasheets import setting
+
+    chip, odr, cutoff = setting(name)
+    return replace(PRESETS[chip], name=name, output_rate_hz=odr,
+                   antialias_ratio=SETTING_ANTIALIAS_RATIO, chip_cutoff_hz=cutoff)
+
+
+PRESETS.update({n: setting_spec(n) for n in ('adxl355@1000Hz', 'bmi088@400Hz', 'bmi088@200Hz')})
 
 
 def imu_spec(name: str, **overrides: Any) -> ImuSpec:
-    """A preset by name with fields overridden; unknown preset or field -> ConfigError."""
-    if name not in PRESETS:
-        raise ConfigError(f'sensor: unknown preset {name!r}; expected {", ".join(PRESETS)}')
+    """A preset by name (or any datasheet setting ``chip@ODRHz[-mode]``) with fields
+    overridden; unknown preset, setting or field -> ConfigError."""
+    if name not in PRESETS and '@' not in name:
+        raise ConfigError(f'sensor: unknown preset {name!r}; expected {", ".join(PRESETS)} '
+                          'or a chip setting chip@ODRHz')
     from railgsa_ros.config import key_list
 
     known = {f.name for f in fields(ImuSpec)} - {'name'}
     unknown = [k for k in overrides if k not in known]
     if unknown:
         raise ConfigError(f'imu: unknown field(s) {key_list(unknown)}')
-    return replace(PRESETS[name], **overrides)
+    return replace(PRESETS[name] if name in PRESETS else setting_spec(name), **overrides)
 
 
 def load_imu(path: str | Path) -> ImuSpec:
@@ -180,11 +204,17 @@ def gyro_chain(spec: ImuSpec) -> ImuSpec:
 
 
 def noise_bandwidth_hz(spec: ImuSpec) -> float:
-    """Equivalent noise bandwidth (Hz) of the anti-alias filter: integral of |H(f)|^2 over
-    [0, fs/2] = (fs / 2) sum h^2 (Parseval); nearly independent of the filter's own rate, here
-    four times the output rate."""
+    """Equivalent noise bandwidth (Hz) of the chip and anti-alias filters: integral of |H(f)|^2
+    over [0, fs/2]; nearly independent of the filters' own rate, here four times the output
+    rate. Without a chip filter (fs / 2) sum h^2 (Parseval)."""
     fs = 4 * spec.output_rate_hz
-    return 0.5 * fs * float(np.sum(antialias_fir(spec, fs) ** 2))
+    taps = antialias_fir(spec, fs)
+    chip = chip_filter(spec, fs)
+    if chip is None:
+        return 0.5 * fs * float(np.sum(taps ** 2))
+    f = np.linspace(0.0, fs / 2, 16385)
+    power = np.abs(signal.freqz(taps, 1.0, f, fs=fs)[1] * signal.sosfreqz(chip, f, fs=fs)[1]) ** 2
+    return float(np.trapezoid(power, f))
 
 
 def accel_covariance(spec: ImuSpec) -> float:
@@ -221,6 +251,17 @@ def antialias_fir(spec: ImuSpec, fs_filter: float) -> np.ndarray:
     width = (0.5 - spec.antialias_ratio) * 2 * spec.output_rate_hz
     numtaps, beta = signal.kaiserord(STOPBAND_DB, width / (0.5 * fs_filter))
     return signal.firwin(numtaps | 1, spec.antialias_hz, window=('kaiser', beta), fs=fs_filter)
+
+
+def chip_filter(spec: ImuSpec, fs_filter: float) -> np.ndarray | None:
+    """The chip's causal low-pass run at ``fs_filter`` Hz as second-order sections: a
+    Butterworth of ``spec.chip_order`` poles, -3 dB at ``spec.chip_cutoff_hz`` (None without)."""
+    if spec.chip_cutoff_hz == 0:
+        return None
+    if spec.chip_cutoff_hz >= fs_filter / 2:
+        raise ConfigError(f'imu.chip_cutoff_hz: {spec.chip_cutoff_hz:g} Hz must be below half '
+                          f'the simulation rate {fs_filter:g} Hz')
+    return signal.butter(int(spec.chip_order), spec.chip_cutoff_hz, fs=fs_filter, output='sos')
 
 
 def rate_ratio(fs_in: float, fs_out: float) -> tuple[int, int]:
@@ -303,6 +344,8 @@ class MemsStream:
         self.fs_in = float(fs_in)
         self.up, self.down = rate_ratio(fs_in, spec.output_rate_hz)
         self.taps = antialias_fir(spec, fs_in * self.up) * self.up
+        self.chip = chip_filter(spec, self.fs_in)  # causal: not compensated
+        self._chip_state: np.ndarray | None = None
         self.half = (self.taps.size - 1) // 2  # delay of the linear-phase FIR, upsampled samples
         # one independent stream per effect: switching one effect leaves the others unchanged
         self._noise, self._walk, self._jitter, drop = np.random.default_rng(seed).spawn(4)
@@ -332,6 +375,10 @@ class MemsStream:
         if spec.noise_density > 0:
             a = a + self._noise.normal(0.0, spec.noise_density * np.sqrt(self.fs_in / 2),
                                        a.shape)
+        if self.chip is not None and a.shape[0]:
+            if self._chip_state is None:  # at rest on the first value before the start
+                self._chip_state = signal.sosfilt_zi(self.chip)[:, :, None] * a[0]
+            a, self._chip_state = signal.sosfilt(self.chip, a, axis=0, zi=self._chip_state)
         if self.n_in == 0 and a.shape[0]:
             self._buf = np.repeat(a[:1], self.pad, axis=0)
             self._buf_start = -self.pad

@@ -1,5 +1,6 @@
 """MEMS accelerometer model against independent truth (PSD, exact decimation, statistics)."""
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -176,10 +177,45 @@ def test_effects_are_seeded_and_independent():
     ({'gyro_noise_density': -1e-4}, 'gyro_noise_density'),
     ({'gyro_range': 0.0}, 'gyro_range'),
     ({'gyro_bias': float('inf')}, 'gyro_bias'),
+    ({'chip_cutoff_hz': 500.0}, 'chip_cutoff_hz'),  # not below the 1 kHz ODR's Nyquist
+    ({'chip_order': 2.5}, 'chip_order'),
 ])
 def test_invalid_fields_name_the_field(kwargs, field):
     with pytest.raises(ConfigError, match=field):
         imu_spec('adxl355', **kwargs)
+
+
+def test_chip_filter_noise_psd_and_covariance_and_chunking():
+    """With a chip filter (100 Hz, 4 poles) white noise leaves the sensor with the density
+    times the Butterworth's |H|^2 = 1 / (1 + (f / fc)^8), and the covariance is its variance;
+    the output does not depend on how the input is chunked (the filter keeps its state)."""
+    nd = 100 * UG
+    spec = ImuSpec(noise_density=nd, gravity=0.0, output_rate_hz=1000.0, chip_cutoff_hz=100.0)
+    t, a = rest(100.0, 4000.0)
+    out = measure(t, a, spec, seed=2)
+    f, pxx = signal.welch(out.accel, fs=1000.0, nperseg=2048, axis=0)
+    band = (f > 5) & (f < 200)
+    butter = 1 / (1 + (f[band] / 100.0) ** 8)
+    assert np.mean(pxx[band] / butter[:, None]) == pytest.approx(nd ** 2, rel=0.03)
+    assert out.accel.var(axis=0) == pytest.approx([accel_covariance(spec)] * 3, rel=0.04)
+    stream = MemsStream(spec, 4000.0, seed=2)
+    cuts = [0, 1, 777, 5000, 123_457, a.shape[0]]
+    parts = [stream.process(a[i:j], final=j == a.shape[0]).accel
+             for i, j in itertools.pairwise(cuts)]
+    np.testing.assert_array_equal(np.concatenate(parts), out.accel)
+
+
+def test_chip_settings_come_from_the_datasheet_tables():
+    """ADXL355: corner ODR / 4; BMI088: the acc_bwp table (normal 145 Hz at 400 Hz ODR, OSR2
+    75 Hz, 80 Hz at 200 Hz); an unknown setting is one line naming the valid ones."""
+    assert imu_spec('adxl355@4000Hz').chip_cutoff_hz == 1000.0
+    assert imu_spec('adxl355@1000Hz').output_rate_hz == 1000.0
+    assert imu_spec('bmi088@400Hz').chip_cutoff_hz == 145.0
+    assert imu_spec('bmi088@400Hz-osr2').chip_cutoff_hz == 75.0
+    assert imu_spec('bmi088@200Hz', noise_density=0.0).chip_cutoff_hz == 80.0
+    for bad in ('bmi088@300Hz', 'adxl355@1000Hz-osr2', 'bmi088@400Hz-osr8', 'lsm6@100Hz'):
+        with pytest.raises(ConfigError, match='expected'):
+            imu_spec(bad)
 
 
 def test_unknown_preset_and_bad_rate():

@@ -12,6 +12,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, vertical
 from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.inverse.score import score
+from railgsa_ros.inverse.sensor import sensor_delay_s
 from railgsa_ros.scenario import run_scenario
 
 
@@ -252,7 +253,8 @@ def test_bad_band_and_grid_exit_2(long_bag, tmp_path, capsys):
     path, _ = long_bag
     for extra in (['--band', 'd9'], ['--band', '70:2'], ['--grid', '0'],
                   ['--grid', '2', '--band', 'd1'], ['--grid', '0.25', '--bands'],
-                  ['--sensor-delay', 'adxl999'], ['--sensor-delay', '-1']):
+                  ['--sensor-delay', 'adxl999'], ['--sensor-delay', '-1'],
+                  ['--sensor-delay', 'bmi088'], ['--sensor-delay', 'bmi088@300Hz']):
         assert main(['invert', str(path), '--csv', str(tmp_path / 'x.csv'), *extra]) == 2
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and any(
@@ -260,11 +262,14 @@ def test_bad_band_and_grid_exit_2(long_bag, tmp_path, capsys):
 
 
 def test_sensor_delay_preset_advances_the_profile(bag, tmp_path):
-    """--sensor-delay adxl355 equals --sensor-delay 0.00525: the output is the same samples,
-    advanced by the preset's group delay (0.13 m at 25 m/s) against no compensation."""
+    """--sensor-delay bmi088@400Hz-osr4 (a 40 Hz cut-off: 2.613 / (2 pi 40 Hz) = 10.4 ms at
+    low frequency, 0.26 m at 25 m/s) equals that many seconds: the output is the same samples,
+    advanced by the delay against no compensation."""
     path, _ = bag
     outs = {}
-    for name, value in (('none', '0'), ('preset', 'adxl355'), ('seconds', '0.00525')):
+    tau = sensor_delay_s('bmi088@400Hz-osr4')
+    assert tau == pytest.approx(2.6131 / (2 * np.pi * 40.0), rel=0.02)
+    for name, value in (('none', '0'), ('preset', 'bmi088@400Hz-osr4'), ('seconds', repr(tau))):
         out = tmp_path / f'{name}.csv'
         assert main(['invert', str(path), '--csv', str(out), '--sensor-delay', value]) == 0
         outs[name] = read_csv(out)[1]
@@ -272,4 +277,4 @@ def test_sensor_delay_preset_advances_the_profile(bag, tmp_path):
     late, early = outs['none'], outs['preset']
     ok = np.isfinite(late[:, 2]) & np.isfinite(early[:, 2])
     lag = np.argmax(np.correlate(early[ok, 2], late[ok, 2][50:-50], 'valid')) - 50
-    assert lag == pytest.approx(-5.25 * 0.5, abs=1.0)  # samples at 500 Hz: advanced
+    assert lag == pytest.approx(-tau * 500, abs=1.0)  # samples at 500 Hz: advanced

@@ -15,6 +15,8 @@ from railgsa_ros.cli import review
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.review.build import build_review
+from railgsa_ros.review.exceedances import Exceedance, listed
+from railgsa_ros.review.outputs import defect_rows
 from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import UncertaintyConfig
@@ -67,3 +69,44 @@ def test_min_probability_outside_0_1_is_refused(simulated, tmp_path: Path, capsy
                  '1.5']) == 2
     assert '--min-probability' in capsys.readouterr().err
     assert not (tmp_path / 'r').exists()
+
+
+def _exceedance(level: str, peak_mm: float, probability: float, alert_probability: float,
+                confidence: str = 'likely') -> Exceedance:
+    """A stretch at 108 km/h (AL 8, IL 10 mm) with its two probabilities."""
+    limit = {'AL': 8.0, 'IL': 10.0}[level]
+    return Exceedance(level, confidence, 0.0, 5.0, 2.5, 0, -peak_mm * 1e-3, -14e-3, -5e-3,
+                      limit * 1e-3, 108.0, probability, 8e-3, alert_probability)
+
+
+def test_the_cut_keeps_what_passes_the_alert_limit():
+    """Issue 22: a stretch 30 % over the alert limit, unlikely to pass the intervention limit
+    its row is listed at, is kept (its central value passes AL, P(AL) = 0.9); a band-edge
+    stretch unlikely to pass anything is dropped; one without a band is kept."""
+    real = _exceedance('IL', 10.4, 0.3, 0.9)
+    edge = _exceedance('AL', 7.0, 0.2, 0.2, 'possible')
+    likely_al = _exceedance('AL', 7.5, 0.1, 0.6, 'possible')  # its P(AL) reaches the cut
+    unbanded = _exceedance('AL', 7.0, float('nan'), float('nan'), 'possible')
+    central = _exceedance('IL', 10.4, 0.1, 0.2)  # an odd band: the central value still counts
+    kept = listed([real, edge, likely_al, unbanded, central], 0.5)
+    assert kept == [real, likely_al, unbanded, central]
+
+
+def test_each_defect_has_its_alert_probability(simulated):
+    """Every listed stretch carries P(|u| > AL) >= P(|u| > its limit) (AL is the lower
+    limit; at AL level they are the same number) and the alert limit of the speed class; the
+    CSV has both columns. The 14 mm dip is listed."""
+    bag, _ = simulated
+    every = build_review(_command_line(str(bag), '--out', 'DIR', '--min-probability', '0'))
+    assert every.exceedances
+    for e in every.exceedances:
+        assert e.alert_limit_m == pytest.approx(8e-3)
+        assert e.alert_probability >= e.probability - 1e-12
+        if e.level == 'AL':
+            assert e.alert_probability == pytest.approx(e.probability, abs=1e-12)
+    rows = defect_rows(every)
+    assert all(r['alert_limit_mm'] == 8.0 and r['alert_probability'] is not None for r in rows)
+    kept = build_review(_command_line(str(bag), '--out', 'DIR'))
+    assert any(abs(e.peak_m - 303.0) < 8 for e in kept.exceedances)
+    assert all(abs(e.peak_u_m) > e.alert_limit_m or e.alert_probability >= 0.5
+               for e in kept.exceedances)

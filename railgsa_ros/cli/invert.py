@@ -68,10 +68,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='output on a fixed chainage step (m, e.g. 0.25), band-passed on '
                    'distance: t_s is when the wheel passed the point (bag: '
                    '/track/irregularity_grid)')
-    p.add_argument('--sensor-delay', metavar='S|PRESET',
-                   help="the IMU filter's group delay to compensate: seconds or a sensor "
-                   'preset (adxl355, bmi088) for data from a real chip; bags of railgsa '
-                   'simulate have none (default: the params file, else 0)')
+    p.add_argument('--sensor-delay', metavar='S|CHIP@ODR',
+                   help="the IMU filter's group delay to compensate: seconds or the chip's "
+                   'datasheet setting (adxl355@1000Hz, bmi088@400Hz, bmi088@400Hz-osr2, ...: '
+                   'the delay its low-pass cut-off implies); bags of railgsa simulate with '
+                   'the adxl355 or bmi088 model have none (default: the params file, else 0)')
     p.add_argument('--smoother', action='store_true', help='kalman: offline RTS smoother')
     add_topic_options(p, 'odometry topic for the speed (default /odom; without odometry, '
                       '--speed is required)')
@@ -89,6 +90,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    'quantiles) for --bands')
     add_location_options(p)
     p.add_argument('--overwrite', action='store_true', help='replace an existing output')
+    p.add_argument('--quiet', action='store_true',
+                   help='no progress bar (drawn on stderr only on a terminal, with tqdm)')
     p.set_defaults(func=run)
 
 
@@ -140,19 +143,24 @@ def build_config(args: argparse.Namespace, rate_hz: float
 
 
 def sensor_delay(text: str) -> float:
-    """--sensor-delay: a number of seconds or the group delay of a sensor preset's filter."""
+    """--sensor-delay: a number of seconds or the group delay of a chip setting's filter
+    (``datasheets``); a delay-free model's name (adxl355, bmi088) is refused: a real chip's
+    delay depends on its output-rate and bandwidth setting."""
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.imu import PRESETS
     from railgsa_ros.inverse.sensor import sensor_delay_s
 
-    chips = [name for name in PRESETS if name != 'ideal']  # the ideal sensor has no chip
-    if text in chips:
-        return sensor_delay_s(text)
+    if '@' in text:
+        try:
+            return sensor_delay_s(text)
+        except ConfigError as exc:
+            raise ConfigError(f'--sensor-delay: {exc}') from None
     try:
         return float(text)
     except ValueError:
-        raise ConfigError(f'--sensor-delay: expected seconds or a preset '
-                          f'({", ".join(chips)}), got {text!r}') from None
+        settings = ', '.join(name for name in PRESETS if '@' in name)
+        raise ConfigError(f'--sensor-delay: expected seconds or a chip setting ({settings}, '
+                          f'...), got {text!r}') from None
 
 
 @dataclass(frozen=True)
@@ -301,6 +309,7 @@ def output(args: argparse.Namespace, location: Location) -> Iterator[CsvRows | B
 def run(args: argparse.Namespace) -> int:
     """Invert the bag chunk by chunk, writing as the samples come out (memory bounded by a
     chunk, not the run); prints a one-line summary to stderr."""
+    from railgsa_ros.cli._progress import with_progress
     from railgsa_ros.errors import ConfigError, InputError
     from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.inverse.grid import ChainageGrid
@@ -316,7 +325,8 @@ def run(args: argparse.Namespace) -> int:
     grid = ChainageGrid.for_config(inp.config, args.grid) if args.grid is not None else None
     count = usable = 0
     with output(args, inp.location) as sink:
-        for step in steps(driver, inp.pieces):
+        pieces = with_progress(inp.pieces, args.bag, args.imu_topic, 'invert', args.quiet)
+        for step in steps(driver, pieces):
             if grid is None:
                 sink.write(step.stamps_ns, step.chainage_m, step.u_m, step.quality, step.band)
                 count, usable = count + len(step), usable + int((step.quality != 2).sum())

@@ -13,8 +13,10 @@ from typing import Any
 
 # the default --min-probability: a maintenance list holds the exceedances more likely than not
 # (docs/uq.md, "Exceedance probability": on simulated runs P >= 0.5 kept all 6 real ones with no
-# false alarm, where listing every band-edge stretch gave 15 false alarms); ReviewOptions (the
-# library) lists every candidate unless told
+# false alarm, where listing every band-edge stretch gave 15 false alarms; docs/review.md,
+# "Exceedance probability near a limit": with P(AL) and the central value kept, 2 of 72 real
+# alert-limit exceedances near IL missed instead of 13); ReviewOptions (the library) lists every
+# candidate unless told
 LISTED_PROBABILITY = 0.5
 
 
@@ -51,8 +53,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--limit-end', choices=('lower', 'upper'), default='lower',
                    help='end of the EN 13848-5 AL/IL ranges to apply (default lower: strictest)')
     p.add_argument('--min-probability', type=float, default=LISTED_PROBABILITY, metavar='P',
-                   help='list only exceedances whose probability of passing the limit (from '
-                        'the uncertainty band) is at least P, 0-1 (default '
+                   help='list only exceedances whose probability of passing their limit or '
+                        'the alert limit (from the uncertainty band) is at least P, and those '
+                        'whose reconstruction passes the alert limit, 0-1 (default '
                         f'{LISTED_PROBABILITY:g}: more likely than not; 0: every band-edge '
                         'stretch); without a band (--no-uncertainty) every exceedance')
     add_topic_options(p)

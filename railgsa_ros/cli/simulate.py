@@ -36,7 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--rate', type=float, default=None, metavar='HZ',
                    help='IMU output rate in Hz (default: the sensor preset rate)')
     p.add_argument('--sensor', default='adxl355', metavar='PRESET',
-                   help='IMU preset: ideal | adxl355 | bmi088 (default adxl355)')
+                   help='IMU preset: ideal | adxl355 | bmi088 (delay-free models; default '
+                        'adxl355) or a chip at a datasheet setting, chip@ODRHz[-osr2|-osr4] '
+                        '(adxl355@1000Hz, bmi088@400Hz: with its chip filter\'s delay)')
     p.add_argument('--seed', type=int, default=0, metavar='N', help='random seed (default 0)')
     p.add_argument('--defects', default=None, metavar='SPEC',
                    help='isolated defects added to the profile, e.g. '

@@ -12,7 +12,7 @@ import time
 
 from railgsa_ros.fileio import atomic_output
 from railgsa_ros.review import figures
-from railgsa_ros.review.exceedances import Exceedance
+from railgsa_ros.review.exceedances import Exceedance, listed
 from railgsa_ros.review.figures import ZOOM_M
 from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.outputs import write_outputs
@@ -59,8 +59,8 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     if run.worst is not None and run.design is not None:
         worst = worst_surrogate(run.design, run.worst, cfg)
     timings['analyse'] = time.perf_counter() - mark
-    listed = [e for e in run.exceedances if not e.probability < options.min_probability]
-    return Review(options, cfg, run, run.health, limits, listed, sections,
+    kept = listed(run.exceedances, options.min_probability)
+    return Review(options, cfg, run, run.health, limits, kept, sections,
                   truth_sections, comparison, worst, timings)
 
 

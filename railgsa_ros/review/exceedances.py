@@ -10,6 +10,12 @@ says what the band adds:
 - ``certain``: the whole band passes the same limit;
 - ``likely``: the central estimate passes it, the band reaches below it;
 - ``possible``: only the band's far edge passes a limit (level = that limit).
+
+With the band's germ samples each exceedance has two probabilities at its peak: of passing the
+limit of its level and of passing the alert limit (the lowest limit the table has there: AL, or
+IAL in D2). A list cut by probability (``listed``) keeps a stretch when either reaches the cut,
+and always keeps one whose central value passes the alert limit: a defect 30 % over the alert
+limit is not dropped because it is unlikely to pass the intervention limit too.
 """
 
 from __future__ import annotations
@@ -31,7 +37,9 @@ CONFIDENCES = ('certain', 'likely', 'possible')
 class Exceedance:
     """One isolated defect beyond a limit: level (AL/IL/IAL), confidence, chainage start, end
     and peak (m), stamp of the peak (ns), signed central value and band at the peak (m), the
-    limit passed (m) and the speed at the peak (km/h)."""
+    limit passed (m), the speed at the peak (km/h), the probability of |u| passing the limit
+    and the alert limit (m: the lowest limit defined at the peak) with its probability (NaN
+    without a surrogate band)."""
 
     level: str
     confidence: str
@@ -45,6 +53,8 @@ class Exceedance:
     limit_m: float
     speed_kmh: float
     probability: float = float('nan')  # of being beyond the limit (surrogate band), NaN without
+    alert_limit_m: float = float('nan')
+    alert_probability: float = float('nan')  # of being beyond the alert limit
 
     @property
     def severity(self) -> int:
@@ -150,10 +160,10 @@ def _deciding(run: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def _record(run: dict[str, np.ndarray], design: Design | None = None) -> Exceedance:
-    """The exceedance of one run of samples beyond a limit; its probability (with bank outputs
-    ``run['bank']`` and a design, else NaN) is that of |u| passing its limit at its peak
-    (``uncertainty.exceedance.exceedance_probability``: the germ samples the band's quantiles
-    come from, with the sensor terms).
+    """The exceedance of one run of samples beyond a limit; its probabilities (with bank outputs
+    ``run['bank']`` and a design, else NaN) are those of |u| passing its limit and the alert
+    limit at its peak (``uncertainty.exceedance.exceedance_probability``: the germ samples the
+    band's quantiles come from, with the sensor terms).
 
     Why at the record only, not at every sample beyond a limit: the record uses the peak's
     alone, and with a wide band (the location term grows with the run) most samples are beyond
@@ -164,15 +174,27 @@ def _record(run: dict[str, np.ndarray], design: Design | None = None) -> Exceeda
                   'certain' if worst_near >= worst_c else 'likely')
     k = int(np.argmax(_peak_key(run)))
     limit = run[_LIMITS[level - 1]][k]
-    probability = np.nan
+    alert = next((v for v in (run[name][k] for name in _LIMITS) if np.isfinite(v)), np.nan)
+    probability = alert_probability = np.nan
     if design is not None and 'bank' in run:
-        probability = exceedance_probability(design, run['bank'][k][:, None], limit,
-                                             run['sensor'][k])[0]
+        bank = run['bank'][k][:, None]
+        probability, alert_probability = exceedance_probability(
+            design, np.hstack([bank, bank]), np.array([limit, alert]), run['sensor'][k])
     return Exceedance(LEVELS[level - 1], confidence, float(run['chainage'][0]),
                       float(run['chainage'][-1]), float(run['chainage'][k]),
                       int(run['stamp'][k]), float(run['u'][k]), float(run['lower'][k]),
                       float(run['upper'][k]), float(limit), float(abs(run['speed'][k]) * 3.6),
-                      float(probability))
+                      float(probability), float(alert), float(alert_probability))
+
+
+def listed(exceedances: list[Exceedance], min_probability: float) -> list[Exceedance]:
+    """The exceedances a list cut at ``min_probability`` keeps: those whose central value
+    passes the alert limit, those whose probability of passing their limit or the alert limit
+    reaches the cut, and those without a probability (no band)."""
+    return [e for e in exceedances
+            if abs(e.peak_u_m) > e.alert_limit_m
+            or not max(e.probability, e.alert_probability) < min_probability
+            or np.isnan(e.probability)]
 
 
 def find_exceedances(chainage_m: np.ndarray, u_m: np.ndarray, speed_mps: np.ndarray,

@@ -5,7 +5,8 @@ Every defect is an exceedance (``exceedances``) at its peak: km-post and chainag
 position (empty without GNSS), signed depth (the mean-to-peak value of the reconstruction),
 the level and confidence, the limit, the exceedance probability (the fraction of the
 surrogate's germ samples beyond the limit at the peak: the samples of the uncertainty band;
-empty without a band), the band at the peak, the speed and the time (UTC) of the IMU sample.
+empty without a band), the alert limit and the probability of passing it, the band at the
+peak, the speed and the time (UTC) of the IMU sample.
 """
 
 from __future__ import annotations
@@ -55,6 +56,8 @@ def defect_rows(review: Review) -> list[dict[str, Any]]:
             'level': e.level, 'confidence': e.confidence,
             'depth_mm': _number(e.peak_u_m * MM, 3), 'limit_mm': _number(e.limit_m * MM, 1),
             'exceedance_probability': _number(e.probability, 4),
+            'alert_limit_mm': _number(e.alert_limit_m * MM, 1),
+            'alert_probability': _number(e.alert_probability, 4),
             'lower_mm': _number(e.lower_m * MM, 3), 'upper_mm': _number(e.upper_m * MM, 3),
             'start_km': _number(float(ref.km(e.start_m)), 4),
             'end_km': _number(float(ref.km(e.end_m)), 4),
@@ -91,8 +94,9 @@ def _write_csv(path: Path, rows: list[dict[str, Any]], header: list[str]) -> Pat
 
 
 DEFECT_COLUMNS = ['line', 'track', 'direction', 'km', 'chainage_m', 'lat', 'lon', 'level',
-                  'confidence', 'depth_mm', 'limit_mm', 'exceedance_probability', 'lower_mm',
-                  'upper_mm', 'start_km', 'end_km', 'speed_kmh', 'time_utc', 'stamp_ns']
+                  'confidence', 'depth_mm', 'limit_mm', 'exceedance_probability',
+                  'alert_limit_mm', 'alert_probability', 'lower_mm', 'upper_mm', 'start_km',
+                  'end_km', 'speed_kmh', 'time_utc', 'stamp_ns']
 SECTION_COLUMNS = ['line', 'track', 'direction', 'start_km', 'end_km', 'start_m', 'length_m',
                    'sd_mm', 'coverage', 'speed_kmh', 'sd_alert_low_mm', 'sd_alert_high_mm']
 

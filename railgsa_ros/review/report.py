@@ -142,15 +142,17 @@ def _limits_section(review: Review, names: dict[str, str]) -> str:
     exc_rows = [[e.level, e.confidence, f'{float(km(e.peak_m)):.4f}', f'{e.start_m:.1f}',
                  f'{e.end_m:.1f}', f'{e.peak_m:.1f}',
                  f'{e.peak_u_m * MM:+.2f}', f'{e.lower_m * MM:+.2f} / {e.upper_m * MM:+.2f}',
-                 f'{e.limit_m * MM:.0f}', f'{e.speed_kmh:.0f}',
-                 '-' if np.isnan(e.probability) else f'{e.probability:.2f}'] for e in listed]
+                 f'{e.limit_m * MM:.0f}', f'{e.speed_kmh:.0f}', _probability(e.probability),
+                 _probability(e.alert_probability)] for e in listed]
     more = (f'<p class=note>{len(severe) - MAX_ROWS} less severe ones not listed.</p>'
             if len(severe) > MAX_ROWS else '')
     band_note = ('The confidence compares the uncertainty band with the limit: certain = the '
                  'whole band passes it, likely = the reconstruction passes it but the band '
                  'reaches below, possible = only the band\'s far edge passes a limit. P = the '
-                 'probability that |u| passes the limit (parameters and sensor terms)'
-                 + (f'; listed when P >= {review.options.min_probability:g}.'
+                 'probability that |u| passes the limit, P(AL) that it passes the alert limit '
+                 '(parameters and sensor terms)'
+                 + (f'; listed when P or P(AL) >= {review.options.min_probability:g} or the '
+                    'reconstruction passes the alert limit.'
                     if review.options.min_probability > 0 else '.'))
     why = ('the strictest an infrastructure manager may choose: a screening of a reconstruction '
            'should rather flag early than miss a defect' if lim.end == 'lower'
@@ -164,9 +166,14 @@ standard; this report uses their <b>{lim.end}</b> end ({why}). Values: {escape(S
 {band_note}</p>
 {_table(['level', *CONFIDENCES], count_rows)}
 {_table(['level', 'confidence', 'km', 'from [m]', 'to [m]', 'peak at [m]', 'peak [mm]',
-         'band at peak [mm]', 'limit [mm]', 'speed [km/h]', 'P'], exc_rows, left=2)}{more}
+         'band at peak [mm]', 'limit [mm]', 'speed [km/h]', 'P', 'P(AL)'], exc_rows,
+        left=2)}{more}
 <details><summary>Limits used ({lim.band.upper()}, {lim.end} end of the ranges) [M]</summary>
 {table}</details>'''
+
+
+def _probability(p: float) -> str:
+    return '-' if np.isnan(p) else f'{p:.2f}'
 
 
 def _sections_section(review: Review, names: dict[str, str]) -> str:
