@@ -42,13 +42,14 @@ from railgsa_ros.track import GERMAN_OMEGA_C, GERMAN_OMEGA_R
 #: below the lowest band edge to this factor above the highest (|BP|^4 of order 2 is 1e-23 there)
 POINTS_PER_DECADE = 1000
 EDGE_FACTOR = 300.0
-SPEED_POINTS = 48  # design speeds (log-spaced, min_design_speed_mps .. max_speed_mps) tabulated
-#: the coach's band FIR spans +-this distance at min_design_speed_mps (+-16 s at 10 m/s, the
-#: fixed delay), Tukey-tapered over its outer half: near a null the LMMSE inverse is a notch of
-#: width ~ 1 / sqrt(SNR) whose impulse response rings for tens of seconds; cut to +-8 s at
-#: 20 m/s it costs 1.7x the LMMSE error, at +-16 s 1.04x (docs/inversion.md, "Coach")
-SPAN_M = 160.0
-GRID_SPANS = 16  # the design grid holds this many FIR half-lengths (the notch's ringing)
+SPEED_POINTS = 16  # design speeds (log-spaced, min_design_speed_mps .. max_speed_mps) tabulated
+#: the coach's band FIR spans +-this distance at min_design_speed_mps (+-24 s at 10 m/s: the
+#: fixed delay), Tukey-tapered over its outer half. Near a null the LMMSE inverse is a notch of
+#: width ~ 1 / sqrt(SNR) whose impulse response rings for tens of seconds: cut to +-8 s at
+#: 20 m/s the D1 error is 1.7x the LMMSE limit above a bogie and 2.4x at the car centre (more
+#: nulls), at +-24 s 1.0x and 1.2x (docs/inversion.md, "Coach")
+SPAN_M = 240.0
+GRID_SPANS = 8  # the design grid holds this many FIR half-lengths (the notch's ringing)
 
 
 def track_psd_hz(f_hz: np.ndarray, speed_mps: float, av: float) -> np.ndarray:
@@ -165,9 +166,10 @@ class Observability:
         for i, v in enumerate(self.speeds):
             power = bandpass_power(grid, *band_edges_hz(band, v), order) * rolloff
             h = design.track_response(grid, v)[0]  # (C, F)
-            fir = tapered(power * design.response(grid, v)[0], half)
-            density = np.abs(power - np.sum(fir * h, axis=0)) ** 2 * track_psd_hz(
-                grid, v, design.av) + np.sum(np.abs(fir) ** 2 * design.s_n[:, None], axis=0)
+            s_u = track_psd_hz(grid, v, design.av)
+            fir = tapered(power * wiener(h, s_u, design.s_n), half)
+            density = np.abs(power - np.sum(fir * h, axis=0)) ** 2 * s_u + np.sum(
+                np.abs(fir) ** 2 * design.s_n[:, None], axis=0)
             self.achieved_var[i] = np.sum(density) * grid[1]
         post, prior = design.band_variances(band, order, self.speeds)
         self.post_var, self.prior_var = post[0], prior

@@ -231,9 +231,11 @@ class InversionPipeline:
             self.extra_channels = len(channels) - 1
             self._wiener = WienerDesign(coach, self.theta, channels, variances,
                                         cfg.track_spectrum_av, cfg.rate_hz)
-            self._wiener_nominal = WienerDesign(
-                coach, self._nominal if self._nominal is not None else self.theta.mean(axis=0),
-                channels, variances, cfg.track_spectrum_av, cfg.rate_hz)
+            nominal_theta = self._nominal if self._nominal is not None else \
+                self.theta.mean(axis=0, keepdims=True)
+            self._wiener_nominal = self._wiener if np.array_equal(nominal_theta, self.theta) \
+                else WienerDesign(coach, nominal_theta, channels, variances,
+                                  cfg.track_spectrum_av, cfg.rate_hz)
         self._extra: list[np.ndarray] = []  # extra channel columns (C - 1, N) not yet fed
         self._last_extra = np.zeros(self.extra_channels)  # last finite value of each
         self.dt = 1.0 / cfg.rate_hz
@@ -443,7 +445,9 @@ class InversionPipeline:
         spans = 4  # the grid must hold the whole FIR twice over (no circular wrap)
         if self._wiener is not None:  # the coach: a fixed span, cut from a longer response
             self._half = half_width(vmin, rate)
-            spans = GRID_SPANS
+            spans = GRID_SPANS  # a grid that holds them at once
+            periods = max(periods, (spans * self._half + 2) * band_edges_hz(cfg.band, vmin)[0]
+                          / rate)
         while True:
             self._grid = design_grid(rate, band_edges_hz(cfg.band, vmin)[0], periods)
             self._rolloff = rolloff(self._grid, f_top, rate) if self.decimation > 1 else 1.0
