@@ -174,21 +174,21 @@ class Observability:
         post, prior = design.band_variances(band, order, self.speeds)
         self.post_var, self.prior_var = post[0], prior
 
-    def _at(self, table: np.ndarray, speeds_mps: np.ndarray) -> np.ndarray:
+    def _at(self, table: np.ndarray, speeds_mps: np.ndarray | float) -> np.ndarray:
         v = np.clip(np.abs(np.asarray(speeds_mps, dtype=float)), self.speeds[0], self.speeds[-1])
         if self.speeds.size == 1:
             return np.full(v.shape, table[0])
         return np.exp(np.interp(np.log(v), np.log(self.speeds), np.log(table)))
 
-    def std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
+    def std_m(self, speeds_mps: np.ndarray | float) -> np.ndarray:
         """Error standard deviation (m) of the pipeline's band output at these speeds (m/s)."""
         return np.sqrt(self._at(self.achieved_var, speeds_mps))
 
-    def limit_std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
+    def limit_std_m(self, speeds_mps: np.ndarray | float) -> np.ndarray:
         """Posterior standard deviation (m) of the LMMSE limit at these speeds (m/s)."""
         return np.sqrt(self._at(self.post_var, speeds_mps))
 
-    def fraction(self, speeds_mps: np.ndarray) -> np.ndarray:
+    def fraction(self, speeds_mps: np.ndarray | float) -> np.ndarray:
         """Unobserved fraction var_post / var_prior of the band's truth variance."""
         return self._at(self.post_var / self.prior_var, speeds_mps)
 

@@ -441,7 +441,7 @@ class InversionPipeline:
         self.decimation = r if r >= 2 else 1
         vmin = cfg.min_design_speed_mps
         rate = cfg.rate_hz / self.decimation
-        periods = DESIGN_PERIODS
+        periods: float = DESIGN_PERIODS
         spans = 4  # the grid must hold the whole FIR twice over (no circular wrap)
         if self._wiener is not None:  # the coach: a fixed span, cut from a longer response
             self._half = half_width(vmin, rate)
