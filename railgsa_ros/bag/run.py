@@ -40,14 +40,15 @@ def sample_indices(stamps_ns: np.ndarray, rate_hz: float) -> np.ndarray:
 class RunEncoder:
     """Serialises slices of a run as Imu, Odometry and PointStamped (truth) CDR messages.
 
-    ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance
-    diagonal; 0 = unknown; None = ``run.accel_covariance``). Imu frame: ``frame_id``, else
-    ``run.frame_id``, else imu_link. Odometry samples the run at ``odom_rate_hz`` with
-    pose.position.x = chainage at the start + odometer distance (m) and twist.twist.linear.x =
-    odometry speed (m/s): both the truth times ``run.odom_scale`` (a wheel-diameter error).
-    Truth: point.x = chainage (m), point.z = irregularity (m) at every IMU stamp, frame
-    ``track``. ``odom``: the TickSampler of a stream whose earlier chunks were encoded before
-    (with ``origin_m``, the stream's first chainage); None for a whole run.
+    ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance diagonal;
+    0 = unknown; None = ``run.accel_covariance``). Imu frame: ``frame_id``, else ``run.frame_id``,
+    else imu_link. Angular velocity: ``run.gyro`` (T, 3) rad/s with the variance
+    ``run.gyro_covariance`` when the run has one, else absent (REP 145). Odometry samples the run
+    at ``odom_rate_hz`` with pose.position.x = chainage at the start + odometer distance (m) and
+    twist.twist.linear.x = odometry speed (m/s): both the truth times ``run.odom_scale`` (a
+    wheel-diameter error). Truth: point.x = chainage (m), point.z = irregularity (m) at every IMU
+    stamp, frame ``track``. ``odom``: the TickSampler of a stream whose earlier chunks were encoded
+    before (with ``origin_m``, the stream's first chainage); None for a whole run.
     """
 
     def __init__(self, run: Any, accel_variance: float | None = None,
@@ -58,6 +59,8 @@ class RunEncoder:
         if accel_variance is None:
             accel_variance = getattr(run, 'accel_covariance', 0.0)
         self.accel_variance = float(accel_variance)
+        self.gyro = getattr(run, 'gyro', None)  # (T, 3) rad/s, None: no gyro
+        self.gyro_variance = float(getattr(run, 'gyro_covariance', 0.0))
         self.odom_rate_hz = float(odom_rate_hz)
         self.stamps_ns = np.asarray(run.stamps_ns, dtype=np.int64)
         self.odom_index = (odom or TickSampler(odom_rate_hz)).take(self.stamps_ns)
@@ -95,9 +98,9 @@ class RunEncoder:
             odometer = self.origin_m + self.odom_scale * (odometer - self.origin_m)
         odom_values = odometry_values(odometer, self.odom_scale * np.asarray(run.speed_mps)[odom])
         return {
-            'imu': (stamps, cdr.encode_rows(IMU, stamps, [self.frame_id],
-                                            imu_values(run.accel[start:stop],
-                                                       self.accel_variance))),
+            'imu': (stamps, cdr.encode_rows(IMU, stamps, [self.frame_id], imu_values(
+                run.accel[start:stop], self.accel_variance,
+                None if self.gyro is None else self.gyro[start:stop], self.gyro_variance))),
             'odom': (odom_stamps, cdr.encode_rows(ODOMETRY, odom_stamps, ['odom', 'base_link'],
                                                   odom_values)),
             'truth': (stamps, cdr.encode_rows(POINT_STAMPED, stamps, ['track'], truth)),

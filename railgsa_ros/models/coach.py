@@ -129,7 +129,7 @@ class CoachGeometry:
             if not isinstance(imu.name, str) or not re.fullmatch(r'[A-Za-z0-9_]+', imu.name):
                 raise ConfigError(f'imus[{i}].name: expected letters, digits or _, '
                                   f'got {imu.name!r}')
-            if names.count(imu.name) > 1:
+            if imu.name in names[:i]:
                 raise ConfigError(f'imus[{i}].name: {imu.name!r} is given twice')
             x = imu.x_m
             if isinstance(x, bool) or not isinstance(x, (int, float)) or not abs(x) <= reach:
@@ -293,6 +293,28 @@ class CoachModel:
         f_hz = np.asarray(f_hz, dtype=float).reshape(-1)
         return delayed_sum(self.frequency_response(theta, 2j * np.pi * f_hz),
                            self.wheel_offsets_m, f_hz, speed_mps)
+
+    def null_wavelengths(self, channel: str, shortest_m: float = 1.0) -> np.ndarray:
+        """Wavelengths (m, >= shortest_m, descending) at which ``channel``'s track response is
+        zero whatever the parameters and the speed, in closed form (front and rear bogies are
+        alike): a bogie's two wheelsets cancel at 2a/(2n+1) for every car-body signal; a
+        car-centre IMU sees bounce only (2L/(2n+1)); the pitch rate sees pitch only (L/n)."""
+        a, span = self.geometry.wheelbase_m, self.geometry.bogie_spacing_m
+        odd = 2.0 * np.arange(1, int(2 * span / shortest_m) + 2) - 1.0  # 1, 3, 5, ...
+        found = [2 * a / odd]
+        if channel == 'pitch_rate':
+            found.append(span / np.arange(1, int(span / shortest_m) + 1))
+        elif self._imu_x(channel) == 0.0:
+            found.append(2 * span / odd)
+        waves = np.concatenate(found)
+        return np.unique(waves[waves >= shortest_m])[::-1]
+
+    def _imu_x(self, channel: str) -> float:
+        """x (m) of the IMU of an ``accel_z`` channel (ValueError for another channel)."""
+        if channel not in self.channels or channel == 'pitch_rate':
+            raise ValueError(f'not an acceleration channel of this coach: {channel!r}')
+        index = 0 if channel == 'accel_z' else 1 + self.channels[2:].index(channel)
+        return float(self.geometry.imus[index].x_m)
 
     def modes(self, theta: np.ndarray | None = None) -> list[ModeInfo]:
         """The modes of one parameter set (default the nominal), by frequency: each pair of

@@ -37,11 +37,8 @@ class QuarterCarModel:
 
     @classmethod
     def from_doc(cls, doc: Mapping[str, Any]) -> QuarterCarModel:
-        """From a parsed vehicle file: ``vehicle:`` (and optionally ``model: quarter_car``)."""
-        unknown = set(doc) - {'model', 'vehicle'}
-        if unknown:
-            raise ConfigError(f'unknown top-level key(s) {", ".join(map(str, sorted(unknown)))}'
-                              ' (a quarter car has model: and vehicle:)')
+        """From a parsed vehicle file: its ``vehicle:`` section, as ``vehicle.load_vehicle``
+        reads it (other top-level keys are left to other readers)."""
         if doc.get('vehicle') is None:
             raise ConfigError('missing top-level "vehicle:" section')
         return cls(VehicleParams.from_mapping(doc['vehicle']))

@@ -48,7 +48,9 @@ SPECS = (
     ParamSpec('sensor', 'adxl355', 'IMU model preset', choices=tuple(PRESETS), read_only=True),
     ParamSpec('seed', 0, 'random seed of track and sensor', bounds=(0, 2**31 - 1),
               read_only=True),
-    ParamSpec('vehicle_file', '', 'vehicle YAML (empty: the paper Table 1)', read_only=True),
+    ParamSpec('vehicle_file', '', 'vehicle YAML, quarter car or coach (model: coach; a coach\'s '
+              'pitch rate goes to angular_velocity.y when the sensor has a gyro); empty: the '
+              'paper Table 1', read_only=True),
     ParamSpec('odom_rate_hz', 50.0, 'odometry rate, Hz', bounds=(0.1, 1000.0), read_only=True),
     ParamSpec('publish_period_s', 0.01, 'timer period; each tick publishes every sample due, s',
               bounds=(0.001, 0.5), read_only=True),
