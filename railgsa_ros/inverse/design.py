@@ -49,6 +49,7 @@ SPEED_POINTS = 16  # design speeds (log-spaced, min_design_speed_mps .. max_spee
 #: 20 m/s the D1 error is 1.7x the LMMSE limit above a bogie and 2.4x at the car centre (more
 #: nulls), at +-24 s 1.0x and 1.2x (docs/inversion.md, "Coach")
 SPAN_M = 240.0
+KEEP_GRIDS = 4  # frequency grids whose wheelset responses a design keeps
 GRID_SPANS = 8  # the design grid holds this many FIR half-lengths (the notch's ringing)
 
 
@@ -96,7 +97,8 @@ class WienerDesign:
     """The LMMSE inverse of ``model`` for parameter sets theta (P, n), from the data channels
     ``channels`` (names of ``model.channels``) with noise variances ``variances`` (C,) (unit^2
     at rate_hz), under the German prior of amplitude ``av`` (m rad). The wheelsets' responses
-    on a grid do not depend on the speed and are kept for the last grid used."""
+    on a grid do not depend on the speed: they are kept for the KEEP_GRIDS grids used last
+    (the band design's, the gap filler's covariance and error grids, the posterior's)."""
 
     def __init__(self, model: VehicleModel, theta: np.ndarray, channels: Sequence[str],
                  variances: Sequence[float], av: float, rate_hz: float) -> None:
@@ -106,14 +108,18 @@ class WienerDesign:
         self.s_n = noise_psd_hz(variances, rate_hz)
         self.av = float(av)
         self.rate_hz = float(rate_hz)
-        self._kept: tuple[np.ndarray, np.ndarray] | None = None  # grid (Hz), H (P, C, W, F)
+        self._kept: dict[tuple[int, float, float], np.ndarray] = {}  # grid -> H (P, C, W, F)
 
     def wheel_responses(self, f_hz: np.ndarray) -> np.ndarray:
-        """H_cw (P, C, W, F) of the data channels at f_hz (Hz), kept for the grid."""
-        if self._kept is None or self._kept[0] is not f_hz:
-            h = self.model.frequency_response(self.theta, 2j * np.pi * f_hz)[:, self.rows]
-            self._kept = (f_hz, h)
-        return self._kept[1]
+        """H_cw (P, C, W, F) of the data channels at f_hz (Hz, evenly or log-spaced: a grid is
+        known by its size and ends), kept for the grid."""
+        key = (f_hz.size, float(f_hz[0]), float(f_hz[-1]))
+        if key not in self._kept:
+            if len(self._kept) >= KEEP_GRIDS:
+                del self._kept[next(iter(self._kept))]  # the oldest
+            self._kept[key] = self.model.frequency_response(self.theta, 2j * np.pi * f_hz
+                                                            )[:, self.rows]
+        return self._kept[key]
 
     def track_response(self, f_hz: np.ndarray, speed_mps: float) -> np.ndarray:
         """H_c(f; v) (P, C, F): the channels per metre of profile at the reference wheelset."""

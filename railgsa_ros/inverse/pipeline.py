@@ -469,8 +469,8 @@ class InversionPipeline:
         channels = self.theta.shape[0] * (self.extra_channels + 1)
         graded = response
         if self._wiener_nominal is not None:
-            graded = (self._band_power(vmin)[:, None] * self._wiener_nominal.response(
-                self._grid, vmin)).reshape(-1, self._grid.size)
+            graded = tapered(self._band_power(vmin)[:, None] * self._wiener_nominal.response(
+                self._grid, vmin), self._half).reshape(-1, self._grid.size)
         elif self._nominal is not None and cfg.method == 'spectral':
             graded = self._band_power(vmin) * inverse_response(self._nominal, self._grid)
         significant = half_length(graded, max(WINDOW_TOLERANCE, cfg.fir_tolerance))
