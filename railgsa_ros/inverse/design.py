@@ -49,6 +49,12 @@ SPEED_POINTS = 16  # design speeds (log-spaced, min_design_speed_mps .. max_spee
 #: 20 m/s the D1 error is 1.7x the LMMSE limit above a bogie and 2.4x at the car centre (more
 #: nulls), at +-24 s 1.0x and 1.2x (docs/inversion.md, "Coach")
 SPAN_M = 240.0
+#: a coach's outputs are DEGRADED where the speed across their band window changes by more
+#: than this (the pipeline's window_speed_tolerance is held to it): the FIR maps lags to
+#: distance at one speed, and the coach's long, ringing FIR (the wheelsets' delays, the nulls'
+#: notches) turns the warp into error: 25 -> 35 m/s in 60 s (+-9 s window: 5 %) reads 0.12 mm
+#: VALID against 0.04 mm at constant speed (docs/inversion.md, "Coach")
+WINDOW_SPEED_TOLERANCE = 0.02
 KEEP_GRIDS = 4  # frequency grids whose wheelset responses a design keeps
 GRID_SPANS = 8  # the design grid holds this many FIR half-lengths (the notch's ringing)
 

@@ -42,6 +42,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.design import (
     GRID_SPANS,
+    WINDOW_SPEED_TOLERANCE,
     Observability,
     WienerDesign,
     channel_variances,
@@ -226,6 +227,8 @@ class InversionPipeline:
             if cfg.method != 'spectral':
                 raise ConfigError(f'method: {cfg.method} inverts the quarter car only; a coach '
                                   'inverts with spectral (its LMMSE design)')
+            self.config = cfg = cfg.with_(window_speed_tolerance=min(
+                cfg.window_speed_tolerance, max(WINDOW_SPEED_TOLERANCE, 2 * cfg.speed_tolerance)))
             variances = channel_variances(coach, channels, accel_var,
                                           cfg.gyro_noise_std_rads ** 2)
             self.extra_channels = len(channels) - 1
@@ -689,8 +692,12 @@ class InversionPipeline:
         keep = slice(None) if every else emit  # no bridged samples: views, no copies
         self._counters['emitted'] += count if every else int(emit.sum())
         quality = self._window_quality(first, quality, speed)
-        if self.observability is not None and count:  # a coach: where the data are blind
-            blind = self.observability.fraction(speed) > UNOBSERVED_LIMIT
+        if self.observability is not None and count:  # a coach: where the data are blind,
+            # or the design held at min_design_speed_mps / max_speed_mps has the wrong delays
+            cfg, v = self.config, np.abs(speed)
+            blind = (self.observability.fraction(speed) > UNOBSERVED_LIMIT) | (
+                v < cfg.min_design_speed_mps * (1 - cfg.window_speed_tolerance)) | (
+                v > cfg.max_speed_mps * (1 + cfg.window_speed_tolerance))
             quality = np.maximum(quality, np.where(blind, _DEGRADED, _VALID)).astype(np.uint8)
         gap_std = np.sqrt(self._gap_variance(first, count)) if self._gap_var else \
             np.zeros(count)
