@@ -110,6 +110,10 @@ class VehicleParams:
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Load ``vehicle:`` parameters from a YAML file such as ``config/vehicle.yaml``."""
     doc = load_yaml(path)
+    if isinstance(doc, dict) and doc.get('model') == 'coach':  # not the quarter car's fields
+        raise ConfigError(f'{path}: a coach (model: coach): this command takes a quarter car; '
+                          'the coach inverts through InversionPipeline(model=...) only so far '
+                          '(docs/inversion.md, "Coach")')
     section = doc.get('vehicle') if isinstance(doc, dict) else None
     if section is None:
         raise ConfigError(f'{path}: missing top-level "vehicle:" section')
