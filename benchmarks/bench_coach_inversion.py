@@ -17,11 +17,12 @@ import argparse
 import numpy as np
 from scipy import fft, signal
 
+from railgsa_ros.config import load_yaml
 from railgsa_ros.inverse.band import band_edges_hz, bandpass_power
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.models import load_model
-from railgsa_ros.models.coach import CoachGeometry, CoachModel, ImuPosition
+from railgsa_ros.models.coach import CoachModel
 from railgsa_ros.track import german_psd, synthesize
 
 RATE_HZ = 1000.0
@@ -31,11 +32,10 @@ EDGE_S = 30.0  # seconds left out at each end of a run (fade-in, the FIR's reach
 
 def coach_at(x_imu_m: float) -> CoachModel:
     """The shipped coach with its primary IMU x_imu_m (m) forward of the car-body centre."""
-    shipped = load_model('config/vehicles/coach.yaml')
-    assert isinstance(shipped, CoachModel)
-    g = shipped.geometry
-    return CoachModel(shipped.params, CoachGeometry(g.bogie_spacing_m, g.wheelbase_m,
-                                                    (ImuPosition('imu', x_imu_m),)))
+    doc = load_yaml('config/vehicles/coach.yaml')
+    model = load_model({**doc, 'imus': [{'name': 'imu', 'x_m': x_imu_m}]})
+    assert isinstance(model, CoachModel)
+    return model
 
 
 def simulate(model: CoachModel, speed: float, seconds: float, seed: int, gyro_std: float

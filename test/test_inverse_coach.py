@@ -7,6 +7,7 @@ reference wheelset's profile through the zero-phase |BP|^2 by FFT.
 
 from __future__ import annotations
 
+from dataclasses import replace
 import hashlib
 
 import numpy as np
@@ -22,7 +23,7 @@ from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance, reconstruct
 from railgsa_ros.models import load_model
-from railgsa_ros.models.coach import CoachGeometry, CoachModel, ImuPosition
+from railgsa_ros.models.coach import CoachModel, ImuPosition
 from railgsa_ros.models.quarter_car import QuarterCarModel
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import german_psd, synthesize
@@ -36,11 +37,11 @@ CONFIG = InversionConfig(min_design_speed_mps=30.0, noise_std_mps2=ACCEL_STD)
 
 
 def coach(x_imu_m: float) -> CoachModel:
+    """The shipped coach, its one IMU x_imu_m (m) forward of the car-body centre."""
     shipped = load_model('config/vehicles/coach.yaml')
     assert isinstance(shipped, CoachModel)
-    g = shipped.geometry
-    return CoachModel(shipped.params, CoachGeometry(g.bogie_spacing_m, g.wheelbase_m,
-                                                    (ImuPosition('imu', x_imu_m),)))
+    imu = (ImuPosition('imu', x_imu_m),)
+    return CoachModel(shipped.params, replace(shipped.geometry, imus=imu))
 
 
 def run(model: CoachModel, seed: int, pitch: bool, seconds: float = 50.0,
