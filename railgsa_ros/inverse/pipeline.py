@@ -6,7 +6,9 @@ each (re)start -> method -> band FIR with a fixed delay of D samples. The output
 emitted when sample k + D has arrived and carries sample k's stamp and chainage.
 
 Methods (all run a bank of P parameter sets):
-- ``spectral``: the exact inverse 1/G(j w) folded into the band FIR, |BP|^2 / G: one FIR stage.
+- ``spectral``: the exact inverse 1/G(j w) folded into the band FIR, |BP|^2 / G: one FIR stage;
+  for a coach (``model=``) its LMMSE inverse from one or more channels (``design.py``), one
+  FIR per channel, summed (``channelsum.py``).
 - ``feedback``: Eq. 7 (exact FOH), then the band FIR; that order lets the band remove the drift of
   the marginally damped slow pole pair (+-j / sqrt(K)) and costs one shared FIR design.
 - ``kalman``: the steady-state Kalman filter (or, offline, the RTS smoother), then the band FIR.
