@@ -33,6 +33,7 @@ import numpy as np
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.imu import (
     FRAME_ID,
+    ImuSamples,
     ImuSpec,
     MemsStream,
     accel_covariance,
@@ -55,13 +56,17 @@ DEFAULT_CHUNK_S = 60.0  # RunStream chunk: about 60 s of simulation (bounded mem
 @dataclass(frozen=True)
 class Run:
     """A simulated run at the delivered IMU samples (dropped samples removed), all shape (T,).
- stamps_ns: int64 sensor stamps (clock drift and jitter included); accel: (T, 3) specific force in
-``frame_id`` (m/s^2, +g on z); t_true_s: true sample times (s); speed_mps and chainage_m (m) at the
-true time; truth_u_m: irregularity under the wheel at the true time (m) (chainage and truth: the
-reference wheelset's). gyro: (T, 3) angular velocity in rad/s (REP 103; y = a coach's pitch rate)
-with its per-axis variance gyro_covariance ((rad/s)^2), or None when the sensor has no gyro or the
-vehicle no pitch. track: u(x) (m) of the simulated track (defects included) at any chainage array x
-(m), also under the dropped samples (None in runs built by hand).
+
+    stamps_ns: int64 sensor stamps (clock drift and jitter included); accel: (T, 3) specific
+    force in ``frame_id`` (m/s^2, +g on z); t_true_s: true sample times (s); speed_mps and
+    chainage_m (m) at the true time; truth_u_m: irregularity under the wheel at the true time
+    (m) (chainage and truth: the reference wheelset's). gyro: (T, 3) angular velocity in rad/s
+    (REP 103; y = a coach's pitch rate) with its per-axis variance gyro_covariance ((rad/s)^2),
+    or None when the sensor has no gyro or the vehicle no pitch. imu_names: the further IMUs of
+    a coach file; imu_accel and imu_gyro (T, K, 3): their specific force and angular velocity
+    at the primary's stamps (None without further IMUs, or without a gyro). track: u(x) (m) of
+    the simulated track (defects included) at any chainage array x (m), also under the dropped
+    samples (None in runs built by hand).
     """
 
     stamps_ns: np.ndarray
@@ -83,6 +88,9 @@ vehicle no pitch. track: u(x) (m) of the simulated track (defects included) at a
     odom_scale: float = 1.0  # odometry speed = (1 + wheel-diameter error) * true speed
     gyro: np.ndarray | None = None
     gyro_covariance: float = -1.0
+    imu_names: tuple[str, ...] = ()
+    imu_accel: np.ndarray | None = None
+    imu_gyro: np.ndarray | None = None
     track: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False,
                                                               repr=False)
 
@@ -175,13 +183,16 @@ class RunStream:
         self.max_speed_mps = float(check_speed(speed_mps).max())
         self.fs_sim, self.q = simulation_rate(rate, self.max_speed_mps, shortest)
         self.speed, self.duration_s = speed_mps, float(duration_s)
-        profile_seed, imu_seed, gyro_seed = (int(child.generate_state(1)[0])
-                                             for child in np.random.SeedSequence(seed).spawn(3))
+        self.theta = _vehicle(vehicle)
+        self.model = as_model(self.theta)
+        # the track, then accelerometer and gyro of each IMU: one independent seed each (the
+        # first two as before gyros and further IMUs existed)
+        n_imus = 1 + sum(c.startswith('accel_z:') for c in self.model.channels)
+        profile_seed, *self.imu_seeds = (int(child.generate_state(1)[0]) for child in
+                                         np.random.SeedSequence(seed).spawn(1 + 2 * n_imus))
         self.line, origin = line_profile(profile_spec,
                                          profile_seed if line_seed is None else line_seed,
                                          wavelength_range)
-        self.theta = _vehicle(vehicle)
-        self.model = as_model(self.theta)
         self.offsets_m = np.asarray(self.model.wheel_offsets_m, dtype=float)
         # by default every wheelset starts on the profile: the reference one the vehicle's
         # length behind the reference point ahead of the origin
@@ -189,11 +200,8 @@ class RunStream:
         self.start_m = origin + behind if start_m is None else float(start_m)
         if not math.isfinite(self.start_m):
             raise ConfigError(f'start chainage: must be finite, got {start_m!r} m')
-        self.imu_seed, self.gyro_seed = imu_seed, gyro_seed
         self.bank = WheelsetBank(self.model, 1.0 / self.fs_sim)
-        self.mems = MemsStream(spec, self.fs_sim, imu_seed)
-        self.has_gyro = spec.gyro and 'pitch_rate' in self.model.channels
-        self.gyro = MemsStream(gyro_chain(spec), self.fs_sim, gyro_seed)
+        self.imus = CarBodyImus(spec, self.fs_sim, self.model.channels, self.imu_seeds)
         step = math.lcm(self.bank.block, self.q)
         self.chunk = step * max(1, int(min(chunk_s * self.fs_sim, 2.0 ** 62)) // step)
         self.template = Run(
@@ -203,14 +211,14 @@ class RunStream:
             n_dropped=0, sensor=spec, vehicle=self.theta, profile=profile_spec,
             defects=defects if isinstance(defects, str) else None, seed=seed,
             odom_scale=float(odom_scale), track=partial(_track, self.line, self.defects),
-            gyro_covariance=gyro_covariance(spec) if self.has_gyro else -1.0)
+            gyro_covariance=gyro_covariance(spec) if self.imus.rate_row is not None else -1.0,
+            imu_names=self.imus.names)
         self.start_ns = np.int64(start_ns)
 
     def __iter__(self) -> Iterator[Run]:
         """The chunks, from the start (each iteration is the whole run again)."""
-        if self.mems.n_in:  # iterated before: start the sensor again
-            self.mems = MemsStream(self.spec, self.fs_sim, self.imu_seed)
-            self.gyro = MemsStream(gyro_chain(self.spec), self.fs_sim, self.gyro_seed)
+        if self.imus.started:  # iterated before: start the sensors again
+            self.imus = CarBodyImus(self.spec, self.fs_sim, self.model.channels, self.imu_seeds)
         reference = int(np.argmin(np.abs(self.offsets_m)))  # offset 0: the output chainage
         n_sim = self.n_out * self.q
         dt = 1.0 / self.fs_sim
@@ -232,14 +240,7 @@ class RunStream:
             u = wheels[reference]
             if lo == 0:  # the vehicle starts at rest on the track where it stands: no step
                 self.bank.settle(wheels[:, 0])
-            channels = self.bank.process(wheels)[0]
-            final = hi == n_sim
-            imu = self.mems.process(channels[0], final=final)
-            gyro = None
-            if self.has_gyro:
-                rate = channels[self.model.channels.index('pitch_rate')]
-                zero = np.zeros_like(rate)
-                gyro = self.gyro.process(np.column_stack([zero, rate, zero]), final=final).accel
+            imu, *values = self.imus.process(self.bank.process(wheels)[0], final=hi == n_sim)
             out = index % self.q == 0
             pending = [np.concatenate([p, x[out]]) for p, x in
                        zip(pending, (v, chainage, u), strict=True)]
@@ -250,7 +251,56 @@ class RunStream:
                           accel=imu.accel[keep], t_true_s=imu.t_true_s[keep],
                           speed_mps=speed[keep], chainage_m=chain[keep],
                           truth_u_m=truth[keep], n_dropped=int(np.sum(~keep)),
-                          gyro=None if gyro is None else gyro[keep])
+                          gyro=_kept(values[0], keep), imu_accel=_kept(values[1], keep),
+                          imu_gyro=_kept(values[2], keep))
+
+
+class CarBodyImus:
+    """The IMUs on the car body, run over a model's channels in chunks.
+
+    Per IMU (the primary, then one per ``accel_z:<name>`` channel) an accelerometer
+    ``MemsStream`` and, when the sensor has a gyro and the vehicle pitches, a gyro stream on the
+    pitch rate (``gyro_chain``); ``seeds``: accelerometer and gyro seed of each IMU in turn.
+    The further IMUs share the primary's stamps and dropouts (one logger): their values only.
+    """
+
+    def __init__(self, spec: ImuSpec, fs_sim: float, channels: tuple[str, ...],
+                 seeds: list[int]) -> None:
+        self.rows = [0] + [i for i, c in enumerate(channels) if c.startswith('accel_z:')]
+        self.names = tuple(channels[i].split(':', 1)[1] for i in self.rows[1:])
+        self.rate_row = channels.index('pitch_rate') \
+            if spec.gyro and 'pitch_rate' in channels else None
+        self.accel = [MemsStream(spec, fs_sim, s) for s in seeds[0:2 * len(self.rows):2]]
+        self.gyro = [] if self.rate_row is None else \
+            [MemsStream(gyro_chain(spec), fs_sim, s) for s in seeds[1:2 * len(self.rows):2]]
+
+    @property
+    def started(self) -> bool:
+        """Whether any input went in (a stream cannot restart)."""
+        return self.accel[0].n_in > 0
+
+    def process(self, channels: np.ndarray, final: bool
+                ) -> tuple[ImuSamples, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """The primary IMU's samples for the next chunk of channels (C, n) and the other
+        ``Run`` arrays at its outputs: gyro (T, 3), imu_accel (T, K, 3) and imu_gyro
+        (T, K, 3) of the K further IMUs (None when absent)."""
+        primary = self.accel[0].process(channels[0], final=final)
+        extra = [m.process(channels[r], final=final).accel
+                 for m, r in zip(self.accel[1:], self.rows[1:], strict=True)]
+        gyros = []
+        if self.rate_row is not None:
+            rate = channels[self.rate_row]
+            zero = np.zeros_like(rate)
+            omega = np.column_stack([zero, rate, zero])
+            gyros = [g.process(omega, final=final).accel for g in self.gyro]
+        return (primary, gyros[0] if gyros else None,
+                np.stack(extra, axis=1) if extra else None,
+                np.stack(gyros[1:], axis=1) if extra and gyros else None)
+
+
+def _kept(values: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:
+    """The delivered rows of an optional array."""
+    return None if values is None else values[keep]
 
 
 def _track(line: Callable[[np.ndarray], np.ndarray], defects: list, x: np.ndarray

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -75,30 +75,43 @@ def check_fields(data: Any, names: tuple[str, ...], source: str) -> None:
         raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
 
 
+class ParamSet:
+    """Base of the frozen parameter dataclasses (SI units): every field is checked against
+    ``UNITS`` and ``BOUNDS`` (``check_parameter``: ConfigError naming 'vehicle.<field>')."""
+
+    NAMES: ClassVar[tuple[str, ...]]
+    UNITS: ClassVar[dict[str, str]]
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]]
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            object.__setattr__(self, f.name, check_parameter(
+                f'vehicle.{f.name}', getattr(self, f.name), self.UNITS[f.name],
+                self.BOUNDS[f.name]))
+
+    def as_array(self) -> np.ndarray:
+        """Return the parameters as a float array of shape (n,), ordered as NAMES."""
+        return np.array([getattr(self, n) for n in self.NAMES])
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the parameters as a plain dict."""
+        return asdict(self)  # type: ignore[call-overload]
+
+
 @dataclass(frozen=True)
-class VehicleParams:
+class VehicleParams(ParamSet):
     """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1. Each must lie
     in ``PARAM_BOUNDS`` (ConfigError naming the field otherwise)."""
+
+    NAMES: ClassVar[tuple[str, ...]] = PARAM_NAMES
+    UNITS: ClassVar[dict[str, str]] = PARAM_UNITS
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]] = PARAM_BOUNDS
 
     m_s: float = 9875.0
     m_us: float = 1100.0
     k_s: float = 2.13e6
     k_us: float = 1.42e8
     c: float = 1.2e5
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            object.__setattr__(self, f.name, check_parameter(
-                f'vehicle.{f.name}', getattr(self, f.name), PARAM_UNITS[f.name],
-                PARAM_BOUNDS[f.name]))
-
-    def as_array(self) -> np.ndarray:
-        """Return the parameters as a float array of shape (5,), ordered as PARAM_NAMES."""
-        return np.array([getattr(self, n) for n in PARAM_NAMES])
-
-    def as_dict(self) -> dict[str, float]:
-        """Return the parameters as a plain dict."""
-        return asdict(self)
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> VehicleParams:
@@ -110,17 +123,22 @@ class VehicleParams:
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Load ``vehicle:`` parameters from a YAML file such as ``config/vehicle.yaml``."""
     doc = load_yaml(path)
-    if isinstance(doc, dict) and doc.get('model') == 'coach':  # not the quarter car's fields
-        raise ConfigError(f'{path}: a coach (model: coach): this command takes a quarter car; '
-                          'the coach inverts through InversionPipeline(model=...) only so far '
-                          '(docs/inversion.md, "Coach")')
-    section = doc.get('vehicle') if isinstance(doc, dict) else None
-    if section is None:
-        raise ConfigError(f'{path}: missing top-level "vehicle:" section')
     try:
-        return VehicleParams.from_mapping(section)
+        return vehicle_from_doc(doc)
     except ConfigError as exc:
         raise ConfigError(f'{path}: {exc}') from None
+
+
+def vehicle_from_doc(doc: Any) -> VehicleParams:
+    """The quarter car of a parsed vehicle file: its ``vehicle:`` section. A file of another
+    model (``model: coach``) is refused by name (ConfigError without the file name)."""
+    if isinstance(doc, dict) and doc.get('model', 'quarter_car') != 'quarter_car':
+        raise ConfigError(f'model: {doc["model"]!r}: this entry point takes a quarter car '
+                          '(vehicle: m_s, m_us, k_s, k_us, c; docs/vehicles.md)')
+    section = doc.get('vehicle') if isinstance(doc, dict) else None
+    if section is None:
+        raise ConfigError('missing top-level "vehicle:" section')
+    return VehicleParams.from_mapping(section)
 
 
 def as_theta(params: VehicleParams | np.ndarray | Mapping[str, float]) -> np.ndarray:

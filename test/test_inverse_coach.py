@@ -27,7 +27,6 @@ from railgsa_ros.models.coach import CoachModel, ImuPosition
 from railgsa_ros.models.quarter_car import QuarterCarModel
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.track import german_psd, synthesize
-from railgsa_ros.vehicle import load_vehicle
 
 RATE = 1000.0
 SPEED = 40.0
@@ -204,13 +203,6 @@ def test_the_project_simulator_at_constant_and_changing_speed() -> None:
                              noise_variance=run_.accel_covariance)
     assert pipe.observability is not None
     assert abs(np.sqrt(np.mean(squares)) / pipe.observability.std_m(35.0) - 1) < 0.25
-
-
-def test_quarter_car_entry_points_refuse_a_coach_file_in_one_line() -> None:
-    """Not silently the quarter car: the loaders of the quarter-car-only entry points (invert,
-    review, calibrate, gsa, the nodes' vehicle_file) name the coach."""
-    with pytest.raises(ConfigError, match=r'a coach \(model: coach\)'):
-        load_vehicle('config/vehicles/coach.yaml')
 
 
 def test_a_bridged_gap_keeps_the_channels_aligned_and_reports_its_error() -> None:

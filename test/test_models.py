@@ -76,3 +76,11 @@ def test_bad_files_give_one_line_errors(tmp_path, text, message):
 def test_track_response_refuses_a_speed_that_is_not_positive():
     with pytest.raises(ConfigError, match='speed'):
         QuarterCarModel().track_response(QuarterCarModel().theta, np.ones(2), 0.0)
+
+
+def test_quarter_car_entry_points_refuse_a_coach_file_by_name():
+    path = CONFIG / 'vehicles' / 'coach.yaml'
+    with pytest.raises(ConfigError) as info:
+        vehicle.load_vehicle(path)
+    assert str(info.value) == (f"{path}: model: 'coach': this entry point takes a quarter car "
+                               '(vehicle: m_s, m_us, k_s, k_us, c; docs/vehicles.md)')

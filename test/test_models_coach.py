@@ -202,3 +202,32 @@ def test_listed_null_wavelengths_are_zeros_of_each_channel():
     assert 2 * L / 3 not in MODEL.null_wavelengths('accel_z:rear')
     with pytest.raises(ValueError, match='not an acceleration channel'):
         MODEL.null_wavelengths('accel_z:roof')
+
+
+def test_low_frequency_limit_is_the_static_lever_rule():
+    # a quasi-static lift of one wheelset by 1 m raises its bogie centre by 1/2, so the car body
+    # by 1/4 and pitches it by -+1/(2L): the displacements behind accel / s^2 and rate / s
+    s = 2j * np.pi * np.array([1e-6, 1e-4])
+    h = MODEL.frequency_response(MODEL.theta, s)
+    side = np.array([1.0, 1.0, -1.0, -1.0])  # leading or trailing bogie
+    for channel, x in (('accel_z', 0.0), ('accel_z:front', 9.5), ('accel_z:rear', -6.0)):
+        static = 0.25 + side * x / (2 * L)
+        np.testing.assert_allclose(h[MODEL.channels.index(channel), :, 0] / s[0] ** 2, static,
+                                   rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(h[1, :, 0] / s[0], -side / (2 * L), rtol=1e-5)
+    # and the damping's first-order correction is still small at 1e-4 Hz
+    np.testing.assert_allclose(h[1, :, 1] / s[1], -side / (2 * L), rtol=1e-3)
+
+
+def test_direct_solve_fallback_equals_the_modal_sum(monkeypatch):
+    from railgsa_ros.models import coach
+
+    rng = np.random.default_rng(5)
+    theta = MODEL.theta * rng.uniform(0.5, 1.5, (6, 10))
+    s = 2j * np.pi * np.logspace(-3, np.log10(500.0), 60)
+    modal = MODEL.frequency_response(theta, s)
+    monkeypatch.setattr(coach, 'MODAL_COND', 0.0)  # every parameter set "nearly defective"
+    solved = MODEL.frequency_response(theta, s)
+    peak = np.abs(solved).max(axis=-1, keepdims=True)
+    assert np.max(np.abs(modal - solved) / peak) < 1e-9
+    assert not np.array_equal(modal, solved)  # two computations, one answer

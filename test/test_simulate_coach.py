@@ -64,6 +64,12 @@ def test_run_at_variable_speed_sees_each_wheelset_at_its_delay():
     np.testing.assert_allclose(accel, ref[0, skip:], atol=3e-3 * ref[0].std())
     np.testing.assert_allclose(run.gyro[skip:, 1], ref[1, skip:], atol=3e-3 * ref[1].std())
     np.testing.assert_array_equal(run.gyro[:, [0, 2]], 0.0)
+    # the further IMU at the car centre, at the primary's stamps, with its own (ideal) gyro
+    assert run.imu_names == ('centre',) and run.imu_accel.shape == (run.accel.shape[0], 1, 3)
+    centre = MODEL.channels.index('accel_z:centre')
+    np.testing.assert_allclose(run.imu_accel[skip:, 0, 2] - G, ref[centre, skip:],
+                               atol=3e-3 * ref[centre].std())
+    np.testing.assert_array_equal(run.imu_gyro[:, 0], run.gyro)
     # not the leading wheelset alone: the others change the answer by far more than the tolerance
     alone = lsim_channels(MODEL, wheels * np.array([[1.0], [0.0], [0.0], [0.0]]),
                           run.t_true_s - run.t_true_s[0])
@@ -90,7 +96,36 @@ def test_gyro_in_the_bag_present_with_a_gyro_and_absent_without(tmp_path):
                                   -1.0)
 
 
+def test_further_imus_get_their_own_topics_in_the_bag(tmp_path):
+    coach = tmp_path / 'coach2.yaml'
+    further = '\n  - {name: centre, x_m: 0.0}\n  - {name: rear, x_m: -9.5} '
+    coach.write_text(COACH_FILE.read_text().replace('    x_m: 9.5 ', '    x_m: 9.5' + further))
+    _, run = simulate_bag(tmp_path / 'bag', vehicle=str(coach), sensor='adxl355', duration=1.0)
+    assert run.imu_names == ('centre', 'rear') and run.imu_gyro is None
+    for k, name in enumerate(run.imu_names):
+        data = read_stamped(tmp_path / 'bag', f'/imu/{name}/data', IMU.msgtype)
+        np.testing.assert_array_equal(data.stamps_ns, run.stamps_ns)
+        assert set(data.strings[0]) == {f'imu_link_{name}'}
+        values = data.values
+        np.testing.assert_array_equal(values[:, IMU_FIELDS['linear_acceleration']],
+                                      run.imu_accel[:, k])
+        np.testing.assert_array_equal(
+            values[:, IMU_FIELDS['angular_velocity_covariance'].start], -1.0)
+    # another position and another sensor: not a copy of the primary
+    assert not np.array_equal(run.imu_accel[:, 0, 2], run.accel[:, 2])
+
+
 def test_quarter_car_runs_have_no_gyro_and_coach_files_load_as_coaches():
     run = run_scenario('german-low', 20.0, 0.5, 400.0, 'bmi088', vehicle=None)
     assert run.gyro is None and run.gyro_covariance == -1.0
     assert load_model(COACH_FILE).kind == 'coach'
+
+
+def test_coach_stream_chunks_equal_the_one_shot_run():
+    from railgsa_ros.scenario import Run, RunStream
+
+    args = ('german-low', np.array([5.0, 25.0]), 3.0, 400.0, 'bmi088')
+    whole = run_scenario(*args, seed=6, vehicle=MODEL)
+    chunks = Run.concat(list(RunStream(*args, seed=6, vehicle=MODEL, chunk_s=0.7)))
+    for name in ('stamps_ns', 'accel', 'gyro', 'imu_accel', 'imu_gyro', 'truth_u_m'):
+        np.testing.assert_array_equal(getattr(chunks, name), getattr(whole, name), name)

@@ -23,17 +23,17 @@ State x = [q, q'] (20); outputs: the car-body acceleration at each IMU, z_c'' - 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 import math
 import re
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from railgsa_ros.config import key_list
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.models import ModeInfo, delayed_sum
-from railgsa_ros.vehicle import check_fields, check_parameter
+from railgsa_ros.vehicle import ParamSet, check_fields, check_parameter
 
 PARAM_NAMES = ('m_c', 'J_c', 'm_b', 'J_b', 'm_w', 'k_p', 'c_p', 'k_s', 'c_s', 'k_h')
 PARAM_UNITS = {'m_c': 'kg', 'J_c': 'kg*m^2', 'm_b': 'kg', 'J_b': 'kg*m^2', 'm_w': 'kg',
@@ -60,13 +60,18 @@ MASS_INDEX = (0, 1, 2, 3, 2, 3, 4, 4, 4, 4)  # theta index of each coordinate's 
 MODE_GROUPS = {'car-body bounce': (ZC,), 'car-body pitch': (TC,), 'bogie bounce': ZB,
                'bogie pitch': TB, 'wheelset hop': ZW}
 SOLVE_BATCH = 50_000  # complex 10x10 systems solved at once (about 80 MB)
+MODAL_COND = 1e8  # above this eigenvector condition number, solve instead of the modal sum
 
 
 @dataclass(frozen=True)
-class CoachParams:
+class CoachParams(ParamSet):
     """Coach parameters (SI units): the Manchester benchmark passenger coach (Iwnicki 1998,
     vehicle 1; docs/vehicles.md) with a contact stiffness of 1e9 N/m per wheel. Each must lie
     in ``PARAM_BOUNDS`` (ConfigError naming the field otherwise)."""
+
+    NAMES: ClassVar[tuple[str, ...]] = PARAM_NAMES
+    UNITS: ClassVar[dict[str, str]] = PARAM_UNITS
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]] = PARAM_BOUNDS
 
     m_c: float = 32000.0
     J_c: float = 1.97e6
@@ -78,20 +83,6 @@ class CoachParams:
     k_s: float = 4.3e5
     c_s: float = 2.0e4
     k_h: float = 1.0e9
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            object.__setattr__(self, f.name, check_parameter(
-                f'vehicle.{f.name}', getattr(self, f.name), PARAM_UNITS[f.name],
-                PARAM_BOUNDS[f.name]))
-
-    def as_array(self) -> np.ndarray:
-        """The parameters as a float array (10,), ordered as PARAM_NAMES."""
-        return np.array([getattr(self, n) for n in PARAM_NAMES])
-
-    def as_dict(self) -> dict[str, float]:
-        """The parameters as a plain dict."""
-        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -199,6 +190,10 @@ class CoachModel:
         self._elements = element_matrices(self.geometry)
         x_p = np.array([imu.x_m for imu in imus])
         self._accel_rows = _unit(ZC)[None, :] - x_p[:, None] * _unit(TC)[None, :]  # (I, 10)
+        # each channel as a displacement (the IMU point, the pitch angle) times s^power
+        self._output_rows = np.concatenate([self._accel_rows[:1], _unit(TC)[None, :],
+                                            self._accel_rows[1:]])
+        self._powers = np.array([2, 1] + [2] * (len(imus) - 1))
 
     @classmethod
     def from_doc(cls, doc: Mapping[str, Any]) -> CoachModel:
@@ -267,23 +262,48 @@ class CoachModel:
         """(..., C, 4, F): each channel per metre of profile under one wheelset at complex
         frequencies s (F,) rad/s: (m/s^2)/m for accelerations, (rad/s)/m for the pitch rate.
 
-        Solves (s^2 M + s C + K) Q = K_u per frequency (no eigen-decomposition: exact also
-        where modes nearly coincide, as the four wheelset hops do)."""
-        mass, c, k, k_u = self.matrices(theta)
+        Modal sum: with A = V diag(lambda) V^-1, an output row r gives
+        sum_k (r V)_k (V^-1 B)_k / (s - lambda_k): one 20 x 20 eigen-decomposition per
+        parameter set instead of a solve per frequency. Below the lowest natural frequency the
+        rows are the outputs' displacements (the IMU point, the pitch angle) times s^2 or s,
+        which tend to their static values (the state space's acceleration rows cancel to zero
+        there); above it the state space's C and D (whose displacement form would cancel). A
+        parameter set whose eigenvectors are ill-conditioned (cond > MODAL_COND: nearly
+        defective) is solved directly, (s^2 M + s C + K) Q = K_u per frequency."""
+        theta = _theta(theta)
         s = np.asarray(s, dtype=complex).reshape(-1)
+        a, b, c, d = self.state_space(theta)
+        lam, vec = np.linalg.eig(a)
+        load = np.swapaxes(np.linalg.solve(vec, b.astype(complex)), -1, -2)  # (..., 4, 20)
+        poles = 1.0 / (s - lam[..., :, None])  # (..., 20, F)
+
+        def modal(rows: np.ndarray) -> np.ndarray:
+            residues = (rows @ vec)[..., :, None, :] * load[..., None, :, :]  # (.., C, 4, 20)
+            return np.einsum('...cwk,...kf->...cwf', residues, poles)
+
+        rows = np.concatenate([self._output_rows, np.zeros_like(self._output_rows)], axis=-1)
+        low = modal(rows) * s ** self._powers[:, None, None]
+        high = modal(c) + d[..., None]
+        below = np.abs(s) < np.abs(lam).min(axis=-1)[..., None, None, None]
+        out = np.where(below, low, high)
+        defective = np.linalg.cond(vec) > MODAL_COND
+        if np.any(defective):
+            out[defective] = self._solved(theta[defective], s)
+        return out
+
+    def _solved(self, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """``frequency_response`` by a linear solve per frequency, in batches of SOLVE_BATCH."""
+        mass, c, k, k_u = self.matrices(theta)
         lead = mass.shape[:-1]
         out = np.empty((*lead, len(self.channels), 4, s.size), dtype=complex)
         step = max(1, SOLVE_BATCH // max(1, math.prod(lead)))
-        eye = np.eye(N_DOF)
         for lo in range(0, s.size, step):
-            sf = s[lo:lo + step][:, None, None]  # (Fc, 1, 1)
-            dyn = (sf ** 2 * eye) * mass[..., None, None, :] + sf * c[..., None, :, :] \
-                + k[..., None, :, :]  # (..., Fc, 10, 10)
+            sf = s[lo:lo + step]
+            dyn = (sf[:, None, None] ** 2 * np.eye(N_DOF)) * mass[..., None, None, :] \
+                + sf[:, None, None] * c[..., None, :, :] + k[..., None, :, :]  # (.., Fc, 10, 10)
             q = np.linalg.solve(dyn, np.broadcast_to(k_u[..., None, :, :], (*dyn.shape[:-1], 4)))
-            accel = np.einsum('ij,...fjw->...iwf', self._accel_rows, q) * s[lo:lo + step] ** 2
-            out[..., 0, :, lo:lo + step] = accel[..., 0, :, :]
-            out[..., 1, :, lo:lo + step] = np.moveaxis(q[..., TC, :], -2, -1) * s[lo:lo + step]
-            out[..., 2:, :, lo:lo + step] = accel[..., 1:, :, :]
+            out[..., lo:lo + step] = np.einsum('cj,...fjw->...cwf', self._output_rows, q) \
+                * sf ** self._powers[:, None, None]
         return out
 
     def track_response(self, theta: np.ndarray, f_hz: np.ndarray,

@@ -13,9 +13,15 @@ from typing import Any
 import numpy as np
 
 from railgsa_ros import vehicle
-from railgsa_ros.errors import ConfigError
 from railgsa_ros.models import ModeInfo, delayed_sum
-from railgsa_ros.vehicle import PARAM_BOUNDS, PARAM_DOCS, PARAM_NAMES, PARAM_UNITS, VehicleParams
+from railgsa_ros.vehicle import (
+    PARAM_BOUNDS,
+    PARAM_DOCS,
+    PARAM_NAMES,
+    PARAM_UNITS,
+    VehicleParams,
+    vehicle_from_doc,
+)
 
 MODE_NAMES = ('car-body bounce', 'wheel hop')
 
@@ -37,11 +43,8 @@ class QuarterCarModel:
 
     @classmethod
     def from_doc(cls, doc: Mapping[str, Any]) -> QuarterCarModel:
-        """From a parsed vehicle file: its ``vehicle:`` section, as ``vehicle.load_vehicle``
-        reads it (other top-level keys are left to other readers)."""
-        if doc.get('vehicle') is None:
-            raise ConfigError('missing top-level "vehicle:" section')
-        return cls(VehicleParams.from_mapping(doc['vehicle']))
+        """From a parsed vehicle file: its ``vehicle:`` section (``vehicle.vehicle_from_doc``)."""
+        return cls(vehicle_from_doc(doc))
 
     def frequency_response(self, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         """(..., 1, 1, F): sprung acceleration per metre of irregularity ((m/s^2)/m)."""
