@@ -19,7 +19,7 @@ from railgsa_ros.imu import imu_spec
 from railgsa_ros.inverse.band import band_edges_hz, bandpass_power
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.design import WienerDesign, information, track_psd_hz
-from railgsa_ros.inverse.pipeline import InversionPipeline
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance, reconstruct
 from railgsa_ros.models import load_model
@@ -231,3 +231,17 @@ def test_a_bridged_gap_keeps_the_channels_aligned_and_reports_its_error() -> Non
     one = [whole.push(stamps, accel, 35.0, rates=rate), whole.flush()]
     np.testing.assert_array_equal(np.concatenate([o.u_m for o in one]),
                                   np.concatenate([o.u_m for o in outs]))  # any chunking
+
+
+def test_a_sensor_too_noisy_for_the_band_is_degraded() -> None:
+    """0.3 m/s^2 of noise (60x the ADXL355's) leaves most of the D1 variance unobserved at
+    35 m/s: the fraction is reported and no output is VALID; the ADXL355's is well below."""
+    model = coach(9.5)
+    noisy = InversionPipeline(CONFIG, model=model, noise_variance=0.3 ** 2)
+    quiet = InversionPipeline(CONFIG, model=model, noise_variance=ACCEL_STD ** 2)
+    assert noisy.observability is not None and quiet.observability is not None
+    assert noisy.observability.fraction(SPEED) > 0.1 > 20 * quiet.observability.fraction(SPEED)
+    stamps = (np.arange(30_000) * 1e6).astype(np.int64)
+    accel = 9.80665 + np.random.default_rng(7).normal(0.0, 0.3, stamps.size)
+    out = Output.concat([noisy.push(stamps, accel, SPEED), noisy.flush()])
+    assert not np.any(out.graded == Quality.VALID) and np.any(out.graded == Quality.DEGRADED)
