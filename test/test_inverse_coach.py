@@ -245,3 +245,20 @@ def test_a_sensor_too_noisy_for_the_band_is_degraded() -> None:
     accel = 9.80665 + np.random.default_rng(7).normal(0.0, 0.3, stamps.size)
     out = Output.concat([noisy.push(stamps, accel, SPEED), noisy.flush()])
     assert not np.any(out.graded == Quality.VALID) and np.any(out.graded == Quality.DEGRADED)
+
+
+def test_non_finite_rates_hold_the_last_finite_value() -> None:
+    model = coach(0.0)
+    stamps = (np.arange(12_000) * 1e6).astype(np.int64)
+    accel = 9.80665 + np.random.default_rng(8).normal(0.0, 0.05, stamps.size)
+    rate = np.sin(np.arange(stamps.size) * 1e-2) * 1e-3
+    broken, held = rate.copy(), rate.copy()
+    broken[5000:5010] = np.nan
+    held[5000:5010] = rate[4999]
+    outs = []
+    for rates in (broken, held):
+        pipe = InversionPipeline(CONFIG, model=model, channels=('accel_z', 'pitch_rate'))
+        outs.append(np.concatenate([pipe.push(stamps, accel, SPEED, rates=rates).u_m,
+                                    pipe.flush().u_m]))
+    np.testing.assert_array_equal(outs[0], outs[1])
+    assert np.all(np.isfinite(outs[0]))
