@@ -66,6 +66,16 @@ def run(model: CoachModel, seed: int, pitch: bool, seconds: float = 50.0,
     return float(np.sqrt(np.mean((est[keep] - truth[keep]) ** 2))), pipe
 
 
+def with_dropout(n: int, seed: int, omega: float) -> tuple[np.ndarray, ...]:
+    """(keep (n,), stamps, accel): n samples at 1 kHz (ns) of 0.05 m/s^2 at omega rad/sample
+    over gravity with 5e-3 m/s^2 of noise, samples 20000..20199 lost."""
+    keep = np.ones(n, bool)
+    keep[20_000:20_200] = False
+    stamps = (np.arange(n) * 1_000_000).astype(np.int64)[keep]
+    noise = np.random.default_rng(seed).normal(0, 5e-3, n)
+    return keep, stamps, (9.80665 + 0.05 * np.sin(np.arange(n) * omega) + noise)[keep]
+
+
 def test_design_sums_the_wheelsets_as_the_model_does() -> None:
     model = coach(9.5)
     f = np.linspace(0.1, 30.0, 200)
@@ -153,13 +163,8 @@ def test_quarter_car_outputs_unchanged() -> None:
     for bit those of the code before the coach (main 4abca60, run under the conftest's BLAS
     thread limit on this machine's CPU: the gap fill's BLAS sums decide the last bits), with
     and without its model."""
-    rng = np.random.default_rng(21)
-    t = 30_000
-    keep = np.ones(t, bool)
-    keep[20_000:20_200] = False
-    stamps = (np.arange(t) * 1_000_000).astype(np.int64)[keep]
-    accel = (9.80665 + 0.05 * np.sin(np.arange(t) * 0.013) + rng.normal(0, 5e-3, t))[keep]
-    speed = np.linspace(18.0, 24.0, t)[keep]
+    keep, stamps, accel = with_dropout(30_000, 21, 0.013)
+    speed = np.linspace(18.0, 24.0, keep.size)[keep]
     bank = np.array([[9875.0, 1100.0, 2.13e6, 1.42e8, 1.2e5], [9000.0, 1000.0, 2.0e6, 1.5e8,
                                                                1.1e5]])
     digests = []
@@ -211,13 +216,8 @@ def test_a_bridged_gap_keeps_the_channels_aligned_and_reports_its_error() -> Non
     same for any chunking, and the outputs around the gap carry the fill's error std and are
     DEGRADED."""
     model = coach(0.0)
-    rng = np.random.default_rng(6)
-    n = 40_000
-    keep = np.ones(n, bool)
-    keep[20_000:20_200] = False
-    stamps = (np.arange(n) * 1e6).astype(np.int64)[keep]
-    accel = (9.80665 + 0.05 * np.sin(np.arange(n) * 0.02) + rng.normal(0, 5e-3, n))[keep]
-    rate = (1e-3 * np.cos(np.arange(n) * 0.02))[keep]
+    keep, stamps, accel = with_dropout(40_000, 6, 0.02)
+    rate = (1e-3 * np.cos(np.arange(keep.size) * 0.02))[keep]
     pipe = InversionPipeline(CONFIG, model=model, channels=('accel_z', 'pitch_rate'))
     outs = [pipe.push(stamps[:15_000], accel[:15_000], 35.0, rates=rate[:15_000]),
             pipe.push(stamps[15_000:], accel[15_000:], 35.0, rates=rate[15_000:]), pipe.flush()]
