@@ -105,7 +105,10 @@ class ImuSpec:
         checks['clock_drift_ppm'] = abs(self.clock_drift_ppm) < 1e5
         for name, ok in checks.items():
             if not ok:
-                raise ConfigError(f'imu.{name}: invalid value {getattr(self, name)!r}')
+                why = (f' (must be below half the output rate, {self.output_rate_hz:g} Hz: '
+                       'a chip setting runs at its own output rate)'
+                       if name == 'chip_cutoff_hz' else '')
+                raise ConfigError(f'imu.{name}: invalid value {getattr(self, name)!r}{why}')
 
     @property
     def antialias_hz(self) -> float:
