@@ -144,7 +144,7 @@ def run_ingest(args: argparse.Namespace) -> int:
 
     outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show, geometry)
     for o in outcomes:
-        if o.status == 'skipped':
+        if o.status in ('skipped', 'repaired'):
             show(o)
     con = db.connect(args.db, read_only=True)
     try:
@@ -155,8 +155,9 @@ def run_ingest(args: argparse.Namespace) -> int:
     finally:
         con.close()
     bad = [o for o in outcomes if o.status in ('failed', 'unaligned')]
+    kept = sum(o.status in ('ok', 'skipped') for o in outcomes)
     print(f'{args.db}: line {options.line} track {options.track}: {n_pass} passes, {n_def} '
-          f'defects ({n_new} new); this batch: {len(outcomes) - len(bad)} stored or skipped, '
+          f'defects ({n_new} new); this batch: {kept} stored or skipped, '
           f'{len(bad)} failed')
     for o in bad:
         print(f'  {o.status}: {said(o)}', file=sys.stderr)

@@ -4,8 +4,10 @@ Each bag is one Dask task (``passes.analyse_pass``, retried by Dask on a lost wo
 client takes the results in submission order (so the first bag of a new line defines its frame
 whatever finishes first), aligns each against its line's reference and writes it: DuckDB has one
 writer, the client. A task that raises is a failed pass: one line in the summary and in
-``passes.message``; the rest of the batch goes on. After the batch every touched line is
-recomputed (``condition.update_line``).
+``passes.message``; the rest of the batch goes on. After the batch the line is recomputed
+(``condition.update_line``) in one transaction. A line whose condition is not computed from
+the passes it holds (a process killed between storing a pass and the end of the line update) is
+rebuilt from its stored passes by the next ingest, even when every bag of it is skipped.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.align import Alignment, Reference, on_line_grid, origin, xcorr_align
-from railgsa_ros.fleet.condition import update_line
+from railgsa_ros.fleet.condition import is_current, ok_passes, update_line
 from railgsa_ros.fleet.gnss import align_fixes, geometry_json, line_from_json
 from railgsa_ros.fleet.passes import PassFailure, PassOptions, PassResult, analyse_or_fail
 from railgsa_ros.review.limits import en13848_limits
@@ -39,7 +41,8 @@ RETRIES = 2  # Dask reruns a task whose worker died or that raised unexpectedly
 
 @dataclass(frozen=True)
 class Outcome:
-    """What happened to one bag: pass id (None when skipped), status and a one-line message."""
+    """What happened to one bag: pass id (None when skipped), status and a one-line message; or
+    to the line (``bag`` 'line L track T', status 'repaired': ``_repair``)."""
 
     bag: str
     pass_id: int | None
@@ -204,7 +207,8 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
                     for b in names if b in done]
         todo = [b for b in dict.fromkeys(names) if b not in done]
         if not todo:
-            return outcomes
+            repaired = _repair(con, options, geometry)
+            return outcomes + ([repaired] if repaired is not None else [])
         with dask_client(scheduler, workers) as client:
             futures = client.map(analyse_or_fail, todo, options=options, pure=False,
                                  retries=RETRIES)
@@ -217,16 +221,34 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
                     pid = _pass_row(con, bag, options, 'failed', result.message)
                     outcome = Outcome(bag, pid, 'failed', result.message)
                 else:
-                    con.begin()
-                    outcome = store_pass(con, result, geometry)
-                    con.commit()
+                    with db.transaction(con):
+                        outcome = store_pass(con, result, geometry)
                 future.release()
                 outcomes.append(outcome)
                 if report is not None:
                     report(outcome)
-        update_line(con, options.line, options.track, options.dx_m,
-                    en13848_limits(options.config.inversion.band), geometry,
-                    options.detect_fraction)
+        _update(con, options, geometry)
     finally:
         con.close()
     return outcomes
+
+
+def _update(con: duckdb.DuckDBPyConnection, options: PassOptions, geometry: Line | None) -> None:
+    """Recompute the line of ``options`` in one transaction."""
+    with db.transaction(con):
+        update_line(con, options.line, options.track, options.dx_m,
+                    en13848_limits(options.config.inversion.band), geometry,
+                    options.detect_fraction)
+
+
+def _repair(con: duckdb.DuckDBPyConnection, options: PassOptions,
+            geometry: Line | None) -> Outcome | None:
+    """Rebuild the line of ``options`` when its condition is not computed from the passes it
+    holds (``condition.is_current``); the outcome saying so, None when it was current."""
+    if is_current(con, options.line, options.track):
+        return None
+    _update(con, options, geometry)
+    name = f'line {options.line} track {options.track}'
+    return Outcome(name, None, 'repaired', f'{name}: its last update did not finish; fused '
+                   f'profile and defects rebuilt from its '
+                   f'{ok_passes(con, options.line, options.track)[0]} stored passes')
