@@ -121,3 +121,57 @@ def test_sigkill_in_the_line_update_leaves_the_line_as_it_was_and_a_rerun_repair
     _same(_condition(killed), expected)
     assert _ingest(bags[1], killed, scheduler) == 0  # now current: nothing to repair
     assert 'repaired' not in capsys.readouterr().out
+
+
+@pytest.fixture(scope='module')
+def one_pass(bags, scheduler, tmp_path_factory):
+    """A database holding bag A."""
+    path = tmp_path_factory.mktemp('one') / 'fleet.duckdb'
+    assert _ingest(bags[0], path, scheduler) == 0
+    return path
+
+
+BLOCK = 256 * 1024  # DuckDB's block size; the file starts with three 4 KiB headers
+TABLES = ('passes', 'fused', 'defects')  # what query, report and ingest read
+
+
+def _blocks(path: Path) -> list[int]:
+    """The blocks that hold the tables' data."""
+    con = db.connect(path, read_only=True)
+    try:
+        return sorted({b for t in TABLES for (b,) in con.execute(
+            f'SELECT DISTINCT block_id FROM pragma_storage_info({t!r}) WHERE block_id >= 0'
+        ).fetchall()})
+    finally:
+        con.close()
+
+
+def test_a_corrupt_database_is_one_line_exit_2(bags, one_pass, tmp_path, capsys):
+    """Each block of table data damaged in turn (64 bytes of 0xff near its start): query, report
+    and ingest either do not need the block (exit 0) or say in one line that the database is
+    damaged (exit 2); before, a damaged data block gave a traceback in query and report."""
+    blocks = _blocks(one_pass)
+    assert len(blocks) >= 3
+    refused = {'query': 0, 'report': 0, 'ingest': 0}
+    for k in blocks:
+        path = tmp_path / f'damaged{k}.duckdb'
+        shutil.copy(one_pass, path)
+        with path.open('r+b') as f:
+            f.seek(3 * 4096 + k * BLOCK + 64)
+            f.write(b'\xff' * 64)
+        for name, argv in (
+                ('query', ['fleet', 'query', '--db', str(path), '--line', 'L', '--from-km', '0',
+                           '--to-km', '1']),
+                ('report', ['fleet', 'report', '--db', str(path), '--out',
+                            str(tmp_path / f'report{k}')]),
+                ('ingest', ['fleet', 'ingest', str(bags[0]), '--db', str(path), *LINE])):
+            capsys.readouterr()
+            code = main(argv)
+            err = capsys.readouterr().err
+            assert code in (0, 2), (name, k)
+            if code == 2:
+                refused[name] += 1
+                assert err.startswith(f'error: {path}: ') and err.count('\n') == 1, err
+                assert 'damaged database' in err or 'cannot open' in err, err
+                assert 'Traceback' not in err
+    assert all(n >= 1 for n in refused.values()), refused

@@ -94,6 +94,20 @@ def transaction(con: duckdb.DuckDBPyConnection) -> Iterator[None]:
     con.commit()
 
 
+@contextmanager
+def damage_named(path: str | Path) -> Iterator[None]:
+    """DuckDB errors inside the block as one InputError naming the database: a corrupt block
+    (checksum), an I/O error; errors in our own SQL (``duckdb.ProgrammingError``) pass."""
+    try:
+        yield
+    except duckdb.ProgrammingError:
+        raise
+    except duckdb.Error as exc:
+        text = ' '.join(str(exc).split())
+        raise InputError(f'{path}: damaged database ({text[:160]}); restore it from a backup or '
+                         're-ingest its bags into a new file') from None
+
+
 def timestamp(stamp_ns: float) -> datetime:
     """UTC time (naive, as DuckDB TIMESTAMP) of a stamp in ns."""
     return datetime.fromtimestamp(float(stamp_ns) * 1e-9, UTC).replace(tzinfo=None)
