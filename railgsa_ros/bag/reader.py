@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from io import BytesIO
 import os
 from pathlib import Path
+import sqlite3
 import struct
 from typing import Any
 import warnings
@@ -67,10 +68,12 @@ def storage_paths(path: str | Path) -> list[Path]:
         if path.suffix not in STORAGE_SUFFIXES:
             raise InputError(f'{path}: not a rosbag2 bag (expected a directory, .mcap or .db3)')
         _refuse_unfinished(path, [path])
+        _apply_wal(path, [path])
         return [path]
     if not path.is_dir():
         raise InputError(f'{path}: no such bag')
     _refuse_unfinished(path, path.glob('*.mcap'))
+    _apply_wal(path, path.glob('*.db3'))
     if (path / 'metadata.yaml').is_file():
         return [path]
     for suffix in STORAGE_SUFFIXES:
@@ -104,6 +107,33 @@ def _refuse_unfinished(bag: Path, files: Iterable[Path]) -> None:
             which = '' if file == bag else f'{file.name} is '
             raise InputError(f'{bag}: {which}unfinished (no MCAP footer: its recorder was '
                              f'killed?); run "railgsa recover {bag}" to make it readable')
+
+
+def _apply_wal(bag: Path, files: Iterable[Path]) -> None:
+    """Move the messages of each .db3's write-ahead log into it (SQLite's own checkpoint, what
+    any SQLite reader does on close); InputError naming ``bag`` when that cannot be done.
+
+    rosbag2's resilient storage preset writes in WAL mode: until a checkpoint the newest
+    messages are only in ``NAME.db3-wal``, and rosbags opens the .db3 as immutable, which
+    ignores the log (31,815 of 49,876 IMU samples read, no error)."""
+    for db3 in files:
+        wal = db3.with_name(db3.name + '-wal')
+        if db3.suffix != '.db3' or not wal.is_file() or wal.stat().st_size == 0:
+            continue
+        try:
+            con = sqlite3.connect(f'file:{db3}?mode=rw', uri=True, timeout=5.0)
+            try:
+                busy, _, _ = con.execute('PRAGMA wal_checkpoint(TRUNCATE)').fetchone()
+            finally:
+                con.close()
+        except sqlite3.Error as exc:
+            busy, reason = 1, _one_line(exc)
+        else:
+            reason = 'a reader or writer holds it'
+        if busy or (wal.is_file() and wal.stat().st_size):
+            raise InputError(f'{bag}: {wal.name} holds messages not yet in {db3.name} (written in '
+                             f'WAL mode) and they cannot be applied ({reason}); copy the bag to '
+                             'a writable directory and read it there')
 
 
 def _one_line(exc: BaseException) -> str:
