@@ -391,8 +391,9 @@ def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
         if keep.size < log_times.size:
             bad = np.setdiff1d(np.arange(log_times.size), keep)
             warnings.warn(InputWarning(
-                f'{bad.size} malformed {msgtype} message(s) skipped (empty or truncated; first '
-                f'at log time {log_times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
+                f'{bad.size} malformed {msgtype} message(s) skipped (empty, truncated or a '
+                f'string over {cdr.MAX_STRING} bytes; first at log time '
+                f'{log_times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
         log_times = log_times[keep]
     return TopicData(log_times, dec.stamps_ns, dec.strings, dec.values)
 
@@ -400,17 +401,23 @@ def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
 def _decode_each(reader: AnyReader, msgtype: str,
                  raws: list[bytes]) -> tuple[cdr.Decoded, np.ndarray]:
     """Messages that are not all plain CDR: the well-formed plain ones vectorised, the others by
-    rosbags with the bag's own definitions; those neither can read (0-byte, truncated) are
-    left out. Returns the decoded messages and their indices into ``raws`` (in order)."""
+    rosbags with the bag's own definitions; those neither can read (0-byte, truncated) and
+    those with a string over ``cdr.MAX_STRING`` are left out. Returns the decoded messages
+    and their indices into ``raws`` (in order)."""
     layout = LAYOUTS[msgtype]
     plain = np.array([cdr.well_formed(layout, r) for r in raws], dtype=bool)
     keep, flat = list(np.flatnonzero(plain)), []
+    longest = cdr.max_length(layout)
     for i in np.flatnonzero(~plain):
+        if len(raws[i]) > longest:  # a string over cdr.MAX_STRING, whatever the encoding
+            continue
         try:
-            flat.append(flatten(reader.deserialize(raws[i], msgtype), msgtype))
-            keep.append(i)
+            row = flatten(reader.deserialize(raws[i], msgtype), msgtype)
         except Exception:  # rosbags raises SerdeError, struct.error, ...
             continue
+        if cdr.within_cap(row[1]):
+            flat.append(row)
+            keep.append(i)
     fast = cdr.decode(layout, [raws[i] for i in np.flatnonzero(plain)])
     stamps = np.concatenate([fast.stamps_ns, np.array([f[0] for f in flat], dtype=np.int64)])
     strings = tuple(np.concatenate([fast.strings[j], np.array([f[1][j] for f in flat],
