@@ -175,3 +175,34 @@ def test_a_corrupt_database_is_one_line_exit_2(bags, one_pass, tmp_path, capsys)
                 assert 'damaged database' in err or 'cannot open' in err, err
                 assert 'Traceback' not in err
     assert all(n >= 1 for n in refused.values()), refused
+
+
+def test_a_copy_of_a_stored_bag_is_skipped_with_a_message(bags, one_pass, scheduler, tmp_path,
+                                                          capsys):
+    """Bag A copied under another name into another directory is skipped, naming the pass it
+    copies; of bag B and its copy in one batch only B is ingested (before: each copy was a new
+    pass, and the trend counted it twice)."""
+    from railgsa_ros.bag.digest import bag_digest
+
+    path = tmp_path / 'fleet.duckdb'
+    shutil.copy(one_pass, path)
+    (tmp_path / 'elsewhere').mkdir()
+    copy_a = Path(shutil.copytree(bags[0], tmp_path / 'elsewhere' / 'monday'))
+    copy_b = Path(shutil.copytree(bags[1], tmp_path / 'elsewhere' / 'tuesday'))
+    assert bag_digest(copy_a) == bag_digest(bags[0]) != bag_digest(bags[1])
+    capsys.readouterr()
+    assert _ingest(copy_a, path, scheduler) == 0
+    out = capsys.readouterr().out
+    assert f'skipped   -        {copy_a}: same content as pass 1 ({bags[0]}): a copy' in out
+    assert main(['fleet', 'ingest', str(bags[1]), str(copy_b), '--db', str(path),
+                 '--scheduler', scheduler, *LINE]) == 0
+    out = capsys.readouterr().out
+    assert f'{copy_b}: same content as {bags[1]} of this batch: a copy' in out
+    con = db.connect(path, read_only=True)
+    try:
+        rows = con.execute('SELECT bag, digest FROM passes ORDER BY pass_id').fetchall()
+        passes = con.execute('SELECT passes FROM defects').fetchall()
+    finally:
+        con.close()
+    assert rows == [(str(bags[0]), bag_digest(bags[0])), (str(bags[1]), bag_digest(bags[1]))]
+    assert passes == [(2,)]

@@ -3,7 +3,8 @@
 One writer at a time (DuckDB is single-writer): the ingest client writes, Dask workers never
 touch the file. Tables (docs/fleet.md has the columns and units):
 
-- ``passes``: one row per bag (status ``ok``, ``unaligned`` or ``failed`` with its message);
+- ``passes``: one row per bag (status ``ok``, ``unaligned`` or ``failed`` with its message,
+  the digest of its content: ``bag.digest``);
 - ``alignments``: offset, scale and their covariance, method and correlation per pass;
 - ``lines``: one row per (line, track): grid step, band, reference pass, frame ('gnss': the
   chainage of the line geometry; 'odometry': the first pass's odometry) and geometry (JSON);
@@ -62,6 +63,7 @@ CREATE TABLE IF NOT EXISTS defects (
     depth_m DOUBLE, depth_sd_m DOUBLE, rate_mm_per_year DOUBLE, rate_se_mm_per_year DOUBLE,
     speed_kmh DOUBLE, level VARCHAR, next_level VARCHAR, next_limit_m DOUBLE,
     projected DATE, projected_early DATE, projected_late DATE, lat DOUBLE, lon DOUBLE);
+ALTER TABLE passes ADD COLUMN IF NOT EXISTS digest VARCHAR;
 CREATE TABLE IF NOT EXISTS line_updates (
     line VARCHAR, track VARCHAR, passes INTEGER, last_pass INTEGER, PRIMARY KEY (line, track));
 """
