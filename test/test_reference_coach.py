@@ -77,6 +77,16 @@ def test_ode_sine_steady_state_matches_frequency_response(wavelength):
         assert np.all(np.max(np.abs(got - expect), axis=1) < 1e-6 * scale)
 
 
+def test_variable_speed_moves_every_wheelset_along_the_same_chainage():
+    t = np.arange(0.0, 0.5, 1e-3)
+    run = simulate(P, ramped_waves, lambda tt: 10.0 + 20.0 * tt, t, start_m=30.0)
+    np.testing.assert_allclose(run.chainage, 30.0 + 10.0 * t + 10.0 * t ** 2, rtol=1e-10)
+    np.testing.assert_allclose(run.speed, 10.0 + 20.0 * t)
+    expect = ramped_waves(run.chainage[None, :] - wheelset_offsets(P)[:, None])
+    np.testing.assert_allclose(run.u_w, expect, rtol=1e-12)
+    assert wheelset_offsets(P)[-1] == pytest.approx(2 * (P['l_c'] + P['l_t']))
+
+
 def test_static_lift():
     _, _, K, B = matrices(P)
     acc = newton_euler(P)
