@@ -35,13 +35,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))  # the ref
 
 from reference.coach_ode import MANCHESTER_COACH, simulate, wheelset_offsets
 from reference.lmmse import (
+    D1_M,
     Channel,
     G,
+    band_power,
     lmmse_estimate,
     posterior_rmse,
     synthesize_profile,
 )
 
+from railgsa_ros.inverse.band import band_limits, bandpass_power
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.score import band_distance, score
@@ -102,6 +105,11 @@ def main() -> None:
                         help='vehicle YAML for the project (default: quarter car defaults)')
     parser.add_argument('--quick', action='store_true', help='smoke run: 400 m')
     args = parser.parse_args()
+    k = np.linspace(0.0, 4.0, 4001)  # 1/m: the limit's target must be the score's band
+    lmin, lmax = band_limits('d1')
+    if (lmin, lmax) != D1_M or not np.allclose(band_power(k), bandpass_power(k, 1 / lmax,
+                                                                             1 / lmin, 2)):
+        raise SystemExit('the reference D1 band differs from the score\'s: limit not optimal')
     length = 400.0 if args.quick else args.length
     vehicle = load_vehicle(args.vehicle) if args.vehicle else None
     label = f'project ({Path(args.vehicle).name})' if args.vehicle else \
