@@ -135,7 +135,7 @@ def simulate(p: Params, profile: Profile, speed: float | Callable[[float], float
     profile(x): rail profile (m) at chainages x (m, array), smooth enough for the tolerance;
     speed: m/s, a constant or v(t); start_m: chainage of wheelset ``reference`` at t_eval[0]
     (every wheelset's chainage is that minus its ``wheelset_offsets``); y0: initial [q, dq] (20,)
-    (None: at rest in the undeflected state). atol (m, m/s, rad, rad/s alike) must be small
+    (None: at rest in static equilibrium). atol (m, m/s, rad, rad/s alike) must be small
     against the responses: the defaults suit profiles of 0.1 mm and more, where halving both
     changes the car-body outputs by < 1e-6 of their peak (test_reference_coach).
     """

@@ -153,11 +153,12 @@ def lmmse_estimate(p: Params, channels: Sequence[Channel], speed: float, y: np.n
     c, t = y.shape
     n = fft.next_fast_len(period_factor * t, real=True)
     f = fft.rfftfreq(n, 1.0 / rate_hz)
-    s_u, bp, h, noise = (np.zeros(f.size), np.zeros(f.size), np.zeros((f.size, c), complex),
-                         None)
-    s_u[1:], bp[1:], h[1:], noise = _spectra(p, channels, speed, f[1:], a_v, band, reference)
-    s_yy = s_u[:, None, None] * h[:, :, None] * np.conj(h[:, None, :]) + np.diag(noise)
-    s_zy = (bp * s_u)[:, None] * np.conj(h)  # cross-spectrum of the target and each channel
+    s_u, bp, h, noise = _spectra(p, channels, speed, f[1:], a_v, band, reference)
+    s_yy = np.concatenate([np.diag(noise)[None],  # f = 0: noise only
+                           s_u[:, None, None] * h[:, :, None] * np.conj(h[:, None, :])
+                           + np.diag(noise)])
+    s_zy = np.concatenate([np.zeros((1, c)),  # cross-spectrum of the target and each channel
+                           (bp * s_u)[:, None] * np.conj(h)])
     s_inv = np.linalg.inv(s_yy)
 
     def apply(spectrum: np.ndarray, a: np.ndarray) -> np.ndarray:
