@@ -21,7 +21,7 @@ from reference.lmmse import (
     error_spectrum,
     lmmse_estimate,
     posterior_rmse,
-    synthesize_profile,
+    synthetic_record,
     wiener_gains,
 )
 from scipy import fft
@@ -122,18 +122,10 @@ def test_free_vibration_energy(damped):
 
 
 def periodic_record(channels, speed, rate, n, rng):
-    """A periodic German-low draw under the reference wheelset, its band target and the noisy
-    channels (exact periodic steady state of the frequency response)."""
-    u = synthesize_profile(n, speed / rate, rng)
+    """Frequencies, channels and band target of a periodic record drawn from the model."""
+    u, y = synthetic_record(P, channels, speed, rate, n, rng)
     f = fft.rfftfreq(n, 1 / rate)
-    u_f = fft.rfft(u)
-    h = np.zeros((f.size, len(channels)), complex)
-    h[1:] = profile_response(P, 2 * np.pi * f[1:], [c.x_p for c in channels], speed)
-    y = fft.irfft(h.T * u_f, n, axis=1)
-    y += rng.standard_normal(y.shape) * np.array([[c.noise_density] for c in channels]) \
-        * np.sqrt(rate / 2)
-    z = fft.irfft(band_power(f, (3.0 / speed, 25.0 / speed)) * u_f, n)
-    return f, y, z
+    return f, y, fft.irfft(band_power(f, (3.0 / speed, 25.0 / speed)) * fft.rfft(u), n)
 
 
 def circular_wiener(channels, speed, f, y):

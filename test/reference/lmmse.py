@@ -95,6 +95,22 @@ class Channel:
     noise_density: float
 
 
+def synthetic_record(p: Params, channels: Sequence[Channel], speed: float, rate_hz: float,
+                     n: int, rng: np.random.Generator, a_v: float = GERMAN_LOW_AV,
+                     reference: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A periodic record of n samples drawn from the model: the German profile under wheelset
+    ``reference`` (n,) m at constant speed, and the channels (channels, n) as the exact
+    periodic steady state of the frequency responses plus their white noise."""
+    u = synthesize_profile(n, speed / rate_hz, rng, a_v)
+    f = fft.rfftfreq(n, 1.0 / rate_hz)
+    h = np.zeros((f.size, len(channels)), complex)
+    h[1:] = profile_response(p, 2 * np.pi * f[1:], [c.x_p for c in channels], speed,
+                             reference)
+    y = fft.irfft(h.T * fft.rfft(u), n, axis=1)
+    density = np.array([[c.noise_density] for c in channels])
+    return u, y + rng.standard_normal(y.shape) * density * np.sqrt(rate_hz / 2)
+
+
 def _spectra(p: Params, channels: Sequence[Channel], speed: float, f_hz: np.ndarray,
              a_v: float, band: tuple[float, float], reference: int
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
