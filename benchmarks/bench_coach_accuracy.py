@@ -11,14 +11,17 @@ deg/s/sqrt(Hz)).
 Limit: the exact finite-record LMMSE of the D1 profile with the true coach, the track spectrum
 as prior and the sensors' noise (reference.lmmse.lmmse_estimate) on the same samples, scored
 like the project (railgsa_ros.inverse.score.score: D1 on distance, 100 m left out at each end);
-beside it the infinite-record posterior RMSE from the spectra (a lower bound for any record)
+beside it the infinite-record posterior RMSE from the spectra (in expectation a lower bound for
+any record)
 and, with ``--draws N``, the mean +- std of the finite-record LMMSE's RMSE over N records of the
 same length drawn from the model (reference.lmmse.synthetic_record): how far one run's limit
 strays from its expectation.
 Project: railgsa_ros.inverse.pipeline.InversionPipeline on the accelerometer samples with the
 vehicle of ``--vehicle`` (a vehicle YAML; default: the quarter car of the default parameters,
-labelled so) and odometry speed; it does not use the gyro, so its cell is the same with and
-without one. Target of issue #21: at most 1.5x the limit.
+labelled so; read by railgsa_ros.vehicle.load_vehicle, which the coach model has to accept, and
+the IMU position the project assumes is the file's, the same for both rows of a speed) and
+odometry speed; it does not use the gyro, so its cell is the same with and without one. Target
+of issue #21: at most 1.5x the limit.
 
 Usage: python benchmarks/bench_coach_accuracy.py [--length 800] [--seed 1] [--vehicle PATH]
     [--draws N] [--quick]
