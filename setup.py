@@ -1,4 +1,12 @@
-"""Build script for railgsa_ros: one tree for pip (``pip install -e .[ros,test]``) and colcon."""
+"""Build script for railgsa_ros: one tree for pip (``pip install -e .[ros,dev]``) and colcon.
+
+The default install is what the nodes need on a train (numpy, scipy, pyyaml and the bag
+libraries); the offline tools that draw, store or spread work come as extras: ``review``
+(matplotlib: ``railgsa review``, ``bode``, ``gsa --plot``, ``demo``; tqdm: the progress bar of
+``invert``), ``fleet`` (the review's plus DuckDB and Dask: ``railgsa fleet``), ``ros`` (rclpy
+from PyPI wheels), ``dev`` (the test and lint tools), ``bench`` (the benchmarks' reference
+libraries).
+"""
 
 from glob import glob
 from pathlib import Path
@@ -20,6 +28,13 @@ def node_scripts() -> list[str]:
 
 ROS = ['ros-jazzy-rclpy==7.1.6', 'ros-jazzy-common-interfaces==5.3.6',
        'ros-jazzy-rmw-fastrtps-cpp==8.4.3']
+#: what the nodes import on a train (test_packaging checks that they import nothing else)
+RUNTIME = ['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'rosbags>=0.10', 'mcap>=1.1',
+           'zstandard>=0.20', 'threadpoolctl>=3.1']
+REVIEW = ['matplotlib>=3.7', 'tqdm>=4.60']
+FLEET = [*REVIEW, 'duckdb>=1.1', 'dask[distributed]>=2024.8']  # its report draws like the review
+DEV = ['pytest>=7', 'pytest-timeout>=2.1', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10',
+       'mcap-ros2-support>=0.5']  # tests write bags with mcap-ros2-support, an independent writer
 
 setup(
     name=PACKAGE,
@@ -29,16 +44,16 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/config/vehicles', glob('config/vehicles/*.yaml')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     python_requires='>=3.11',
-    install_requires=['numpy>=1.24', 'scipy>=1.11', 'pyyaml>=6', 'matplotlib>=3.7',
-                      'rosbags>=0.10', 'mcap>=1.1', 'duckdb>=1.1', 'dask[distributed]>=2024.8',
-                      'zstandard>=0.20', 'threadpoolctl>=3.1'],
+    install_requires=RUNTIME,
     extras_require={
         'ros': ROS,
-        'test': ['pytest>=7', 'pytest-timeout>=2.1', 'hypothesis>=6', 'ruff>=0.5', 'mypy>=1.10',
-                 'mcap-ros2-support>=0.5'],  # tests write bags with it
+        'review': REVIEW,
+        'fleet': FLEET,
+        'dev': DEV,
         'bench': ['SALib>=1.5', 'chaospy>=4.3'],
     },
     zip_safe=True,

@@ -20,7 +20,7 @@ def tool_command(name: str) -> list[str]:
     local = Path(sys.executable).parent / name
     found = str(local) if local.exists() else shutil.which(name)
     if found is None:
-        pytest.skip(f'{name} is not installed (pip install -e .[test])')
+        pytest.skip(f'{name} is not installed (pip install -e ".[dev]")')
     return [found]
 
 

@@ -237,42 +237,72 @@ def test_run_stops_the_others_and_exits_non_zero_when_a_node_dies(
 
 
 # ---------------------------------------------------------------------------- the launch file
-def _calls(tree: ast.AST, name: str) -> list[ast.Call]:
-    return [n for n in ast.walk(tree) if isinstance(n, ast.Call)
-            and getattr(n.func, 'id', getattr(n.func, 'attr', None)) == name]
+class Recorded:
+    """Stands in for a launch or launch_ros class: keeps the arguments it was built with."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args, self.kwargs = args, kwargs
 
 
-def _kw(call: ast.Call) -> dict[str, ast.expr]:
-    return {k.arg: k.value for k in call.keywords}
+def launch_description(monkeypatch: Any) -> Recorded:
+    """What launch/railgsa.launch.py's generate_launch_description returns, built on stand-ins
+    of the launch and launch_ros classes it imports (launch is not installable from PyPI)."""
+    import types
+
+    tree = ast.parse(LAUNCH.read_text())
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom) and node.module.split('.')[0] in ('launch',
+                                                                              'launch_ros'):
+            module = types.ModuleType(node.module)
+            for alias in node.names:  # one class per imported name
+                setattr(module, alias.name, type(alias.name, (Recorded,), {}))
+            monkeypatch.setitem(sys.modules, node.module, module)
+    namespace: dict[str, Any] = {}
+    exec(compile(tree, str(LAUNCH), 'exec'), namespace)
+    return namespace['generate_launch_description']()
 
 
 def test_launch_file_starts_both_nodes_from_one_params_file(monkeypatch: Any) -> None:
-    from test_packaging import setup_kwargs
+    from setup_helpers import setup_kwargs
 
-    tree = ast.parse(LAUNCH.read_text())
-    assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description'
-               for n in tree.body)
-    consts = {n.targets[0].id: n.value for n in tree.body if isinstance(n, ast.Assign)}
-    assert ast.literal_eval(consts['PACKAGE']) == 'railgsa_ros'
-    # variables bound to launch arguments: name -> argument
-    bound = {n.targets[0].id: ast.literal_eval(n.value.args[0])
-             for n in ast.walk(tree) if isinstance(n, ast.Assign)
-             and isinstance(n.value, ast.Call) and getattr(n.value.func, 'id', '') ==
-             'LaunchConfiguration'}
-    declared = {ast.literal_eval(c.args[0]): c for c in _calls(tree, 'DeclareLaunchArgument')}
-    assert set(declared) == {'params_file', 'namespace', 'record', 'record_out'}
-    default = _kw(declared['params_file'])['default_value']
-    parts = [ast.literal_eval(e) for e in default.args[0].elts[1:]]
-    assert parts == ['config', 'railgsa.yaml'] and (REPO / 'config' / 'railgsa.yaml').is_file()
-    nodes = {ast.literal_eval(_kw(c)['executable']): _kw(c) for c in _calls(tree, 'Node')}
+    entities = launch_description(monkeypatch).args[0]
+    declared = {e.args[0]: e.kwargs for e in entities
+                if type(e).__name__ == 'DeclareLaunchArgument'}
+    assert set(declared) == {'params_file', 'namespace', 'imu_topic', 'odom_topic',
+                             'use_sim_time', 'log_level', 'record', 'record_out'}
+    default = declared['params_file']['default_value']
+    assert default.args[0][1:] == ['config', 'railgsa.yaml']
+    assert default.args[0][0].args == ('railgsa_ros',)  # FindPackageShare(PACKAGE)
+    assert (REPO / 'config' / 'railgsa.yaml').is_file()
+    assert declared['imu_topic']['default_value'] == 'imu/data'  # the nodes' own names
+    assert declared['odom_topic']['default_value'] == 'odom'
+    assert declared['use_sim_time']['default_value'] == 'false'
+    assert declared['log_level']['default_value'] == 'info'
+    assert 'debug' in declared['log_level']['choices']
+
+    def config(value: Any) -> str:
+        """The launch argument a LaunchConfiguration reads."""
+        assert type(value).__name__ == 'LaunchConfiguration'
+        return value.args[0]
+
+    nodes = {e.kwargs['executable']: e.kwargs for e in entities if type(e).__name__ == 'Node'}
     assert set(nodes) == {'irregularity_node', 'uncertainty_node', 'recorder'}
     for kw in nodes.values():
-        assert kw['package'].id == 'PACKAGE' and bound[kw['namespace'].id] == 'namespace'
+        assert kw['package'] == 'railgsa_ros' and config(kw['namespace']) == 'namespace'
         assert 'name' not in kw  # no __node remap: the /**/<node> sections match the names
-    given = [[e.id for e in nodes[n]['parameters'].elts] for n in NODES]
-    assert given[0] == given[1] and len(given[0]) == 1 and bound[given[0][0]] == 'params_file'
-    assert 'condition' in nodes['recorder'] and 'IfCondition' in ast.dump(
-        nodes['recorder']['condition'])
+        level = kw['ros_arguments']
+        assert level[0] == '--log-level' and config(level[1]) == 'log_level'
+        sim_time = kw['parameters'][-1]['use_sim_time']  # last: it wins over the file
+        assert config(sim_time.args[0]) == 'use_sim_time'
+        assert sim_time.kwargs['value_type'] is bool  # 'true' -> True, not the string
+    for name in NODES:
+        params_file, _ = nodes[name]['parameters']
+        assert config(params_file) == 'params_file'  # the same file for both nodes
+        assert {topic: config(to) for topic, to in nodes[name]['remappings']} == {
+            'imu/data': 'imu_topic', 'odom': 'odom_topic'}
+    assert config(nodes['recorder']['condition'].args[0]) == 'record'
+    assert type(nodes['recorder']['condition']).__name__ == 'IfCondition'
+    assert config(nodes['recorder']['parameters'][0]['out']) == 'record_out'
     kwargs = setup_kwargs(monkeypatch)
     data = dict(kwargs['data_files'])
     assert data['share/railgsa_ros/launch'] == ['launch/railgsa.launch.py']

@@ -147,21 +147,24 @@ def run_ingest(args: argparse.Namespace) -> int:
         label = f'pass {o.pass_id}' if o.pass_id is not None else '-'
         print(f'{o.status:<9} {label:<8} {said(o)}', flush=True)
 
-    outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show, geometry)
-    for o in outcomes:
-        if o.status == 'skipped':
-            show(o)
-    con = db.connect(args.db, read_only=True)
-    try:
-        n_pass, n_def, n_new = con.execute(
-            "SELECT (SELECT count(*) FROM passes WHERE line = $l AND track = $t AND status = "
-            "'ok'), count(*), count(*) FILTER (WHERE new) FROM defects WHERE line = $l AND "
-            "track = $t", {'l': options.line, 't': options.track}).fetchone() or (0, 0, 0)
-    finally:
-        con.close()
+    with db.damage_named(args.db):
+        outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show,
+                          geometry)
+        for o in outcomes:
+            if o.status in ('skipped', 'repaired'):
+                show(o)
+        con = db.connect(args.db, read_only=True)
+        try:
+            n_pass, n_def, n_new = con.execute(
+                "SELECT (SELECT count(*) FROM passes WHERE line = $l AND track = $t AND status "
+                "= 'ok'), count(*), count(*) FILTER (WHERE new) FROM defects WHERE line = $l "
+                "AND track = $t", {'l': options.line, 't': options.track}).fetchone() or (0, 0, 0)
+        finally:
+            con.close()
     bad = [o for o in outcomes if o.status in ('failed', 'unaligned')]
+    kept = sum(o.status in ('ok', 'skipped') for o in outcomes)
     print(f'{args.db}: line {options.line} track {options.track}: {n_pass} passes, {n_def} '
-          f'defects ({n_new} new); this batch: {len(outcomes) - len(bad)} stored or skipped, '
+          f'defects ({n_new} new); this batch: {kept} stored or skipped, '
           f'{len(bad)} failed')
     for o in bad:
         print(f'  {o.status}: {said(o)}', file=sys.stderr)
@@ -172,10 +175,12 @@ def run_report(args: argparse.Namespace) -> int:
     """Write the report and print its path."""
     from railgsa_ros.cli.review import standard_inputs
     from railgsa_ros.fileio import refuse_overlap
+    from railgsa_ros.fleet import db
     from railgsa_ros.fleet.report import write_report
 
     refuse_overlap(args.out, (args.db, args.limits, args.line_speed))
-    print(write_report(args.db, args.out, args.overwrite, *standard_inputs(args)))
+    with db.damage_named(args.db):
+        print(write_report(args.db, args.out, args.overwrite, *standard_inputs(args)))
     return 0
 
 
@@ -186,11 +191,13 @@ def run_query(args: argparse.Namespace) -> int:
     from railgsa_ros.fleet.query import defects_between, line_limits, to_csv, to_json
 
     table, line_speed = standard_inputs(args)
-    con = db.connect(args.db, read_only=True)
-    try:
-        limits = line_limits(con, args.line, args.track, table, line_speed)
-        rows = defects_between(con, args.line, args.from_km, args.to_km, args.track, limits)
-    finally:
-        con.close()
+    with db.damage_named(args.db):
+        con = db.connect(args.db, read_only=True)
+        try:
+            limits = line_limits(con, args.line, args.track, table, line_speed)
+            rows = defects_between(con, args.line, args.from_km, args.to_km, args.track,
+                                   limits)
+        finally:
+            con.close()
     sys.stdout.write(to_csv(rows) if args.format == 'csv' else to_json(rows) + '\n')
     return 0

@@ -90,6 +90,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    'quantiles) for --bands')
     add_location_options(p)
     p.add_argument('--overwrite', action='store_true', help='replace an existing output')
+    p.add_argument('--quiet', action='store_true',
+                   help='no progress bar (drawn on stderr only on a terminal, with tqdm)')
     p.set_defaults(func=run)
 
 
@@ -307,6 +309,7 @@ def output(args: argparse.Namespace, location: Location) -> Iterator[CsvRows | B
 def run(args: argparse.Namespace) -> int:
     """Invert the bag chunk by chunk, writing as the samples come out (memory bounded by a
     chunk, not the run); prints a one-line summary to stderr."""
+    from railgsa_ros.cli._progress import with_progress
     from railgsa_ros.errors import ConfigError, InputError
     from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.inverse.grid import ChainageGrid
@@ -322,7 +325,8 @@ def run(args: argparse.Namespace) -> int:
     grid = ChainageGrid.for_config(inp.config, args.grid) if args.grid is not None else None
     count = usable = 0
     with output(args, inp.location) as sink:
-        for step in steps(driver, inp.pieces):
+        pieces = with_progress(inp.pieces, args.bag, args.imu_topic, 'invert', args.quiet)
+        for step in steps(driver, pieces):
             if grid is None:
                 sink.write(step.stamps_ns, step.chainage_m, step.u_m, step.quality, step.band)
                 count, usable = count + len(step), usable + int((step.quality != 2).sum())

@@ -1,6 +1,7 @@
 """Entry point of ``railgsa``: discovers the subcommand modules and maps errors to exit codes.
 
-RailGsaError -> ``error: <message>`` on stderr and exit code 2 (no traceback); Ctrl-C -> 130;
+RailGsaError -> ``error: <message>`` on stderr and exit code 2 (no traceback), also for a command
+whose pip extra is not installed (cli/_extras.py); Ctrl-C -> 130;
 an InputWarning (data skipped and counted) -> ``warning: <message>`` on stderr.
 """
 
@@ -14,6 +15,7 @@ import sys
 import warnings
 
 from railgsa_ros import __version__, cli
+from railgsa_ros.cli._extras import check_extra
 from railgsa_ros.errors import InputWarning, RailGsaError
 from railgsa_ros.threads import limit_blas_threads
 
@@ -29,7 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
         description='Vertical track irregularity from car-body acceleration: simulation, '
                     'inversion, uncertainty and sensitivity.')
     parser.add_argument('--version', action='version', version=f'%(prog)s {__version__}')
-    subparsers = parser.add_subparsers(title='commands', metavar='COMMAND', required=True)
+    subparsers = parser.add_subparsers(title='commands', metavar='COMMAND', dest='command',
+                                       required=True)
     for info in sorted(pkgutil.iter_modules(cli.__path__), key=lambda m: m.name):
         if info.name == 'main' or info.name.startswith('_'):
             continue
@@ -50,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.simplefilter('always', InputWarning)
         try:
             args = build_parser().parse_args(argv)
+            check_extra(args.command, args)
             return int(args.func(args) or 0)
         except RailGsaError as exc:
             print(f'error: {exc}', file=sys.stderr)

@@ -81,6 +81,25 @@ def pass_profile(con: duckdb.DuckDBPyConnection, pass_id: int) -> dict[str, np.n
                          'WHERE pass_id = ? ORDER BY cell', [pass_id])
 
 
+def ok_passes(con: duckdb.DuckDBPyConnection, line: str, track: str) -> tuple[int, int]:
+    """(count, largest id) of the line's 'ok' passes ((0, 0) for none): ids only grow and
+    passes are never removed, so this pair changes with every pass stored."""
+    count, last = con.execute("""SELECT count(*), coalesce(max(pass_id), 0) FROM passes
+                                 WHERE line = ? AND track = ? AND status = 'ok'""",
+                              [line, track]).fetchone() or (0, 0)
+    return int(count), int(last)
+
+
+def is_current(con: duckdb.DuckDBPyConnection, line: str, track: str) -> bool:
+    """Whether the line's condition (fused profile, defects) was computed from the 'ok' passes
+    it holds now: False when a pass was stored and the process died before (or during) the
+    update, or the update predates ``line_updates``."""
+    done = con.execute('SELECT passes, last_pass FROM line_updates WHERE line = ? AND track = ?',
+                       [line, track]).fetchone()
+    now = ok_passes(con, line, track)
+    return now[0] == 0 or (done is not None and tuple(done) == now)
+
+
 def _level(limits: Limits, depth_m: float, x_m: float, speed_mps: float
            ) -> tuple[str, str, float]:
     """(level reached or '', next level or '', next limit (m) or NaN) of a depth at line
@@ -114,9 +133,10 @@ def reclass(row: dict, limits: Limits) -> dict:
 def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
                 limits: Limits, geometry: Line | None = None,
                 fraction: float = DETECT_FRACTION) -> None:
-    """Recompute the line's scatter, fused profile, detections and defects (module docstring);
-    with a ``geo.Line`` in the line's frame, the defects get their WGS84 position; defects are
-    detected from ``fraction`` of the alert limit."""
+    """Recompute the line's scatter, fused profile, detections and defects (module docstring)
+    and record the passes they come from (``line_updates``); with a ``geo.Line`` in the line's
+    frame, the defects get their WGS84 position; defects are detected from ``fraction`` of the
+    alert limit. Run it in one transaction (``db.transaction``)."""
     pass_scatter(con, line, track)
     fuse_line(con, line, track)
     passes = line_passes(con, line, track)
@@ -159,6 +179,8 @@ def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
                         [line, track]).fetchone()
     where = geometry if frame is not None and frame[0] == 'gnss' else None
     _store(con, line, track, rows, x_def, sign_def, limits, where)
+    con.execute('INSERT OR REPLACE INTO line_updates VALUES (?, ?, ?, ?)',
+                [line, track, *ok_passes(con, line, track)])
 
 
 def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, rows: dict[str, list],
