@@ -32,7 +32,7 @@ import numpy as np
 
 from railgsa_ros.config import key_list
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.models import ModeInfo, delayed_sum
+from railgsa_ros.models.base import ModeInfo, delayed_sum
 from railgsa_ros.vehicle import ParamSet, check_fields, check_parameter
 
 PARAM_NAMES = ('m_c', 'J_c', 'm_b', 'J_b', 'm_w', 'k_p', 'c_p', 'k_s', 'c_s', 'k_h')

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from railgsa_ros import vehicle
-from railgsa_ros.models import ModeInfo, delayed_sum
+from railgsa_ros.models.base import ModeInfo, delayed_sum
 from railgsa_ros.vehicle import (
     PARAM_BOUNDS,
     PARAM_DOCS,
