@@ -43,6 +43,8 @@ INVERSIONS = {
     'wide': ['--band', 'wide', '--sensor-delay', 'adxl355'],
 }
 
+#: summary keys that differ between runs: paths of this run's temporary folder, timing
+VOLATILE = ('bag', 'files', 'review_s', 'real_time_factor')
 #: which inversions run on which bag (all on the project's bag)
 ON_SIMULATED = ('spectral', 'kalman', 'grid', 'bands')
 
@@ -71,7 +73,8 @@ def hash_bag(name: str, bag: Path, work: Path, inversions: tuple[str, ...]) -> l
         folder = work / f'{name}_{label}'
         summary = json.loads(railgsa('review', str(bag), '--out', str(folder), '--json',
                                      '--no-progress', *extra))
-        summary.pop('files', None)  # paths of this run's temporary folder
+        for key in VOLATILE:
+            summary.pop(key, None)
         text = json.dumps(summary, sort_keys=True).encode()
         lines.append(f'{name}/{label}_json {hashlib.sha256(text).hexdigest()}')
         for path in sorted(folder.iterdir()):
