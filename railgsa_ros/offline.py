@@ -2,7 +2,7 @@
 
 ``railgsa invert``, ``invert --bands`` and ``railgsa review`` all run through :class:`Driver`:
 pieces of the bag (``bag.iter_imu``, about 65,536 IMU samples each) go to the nominal
-``InputPolicy`` (irregularity_node's core: every input decision, then the pipeline) and, with
+``InputStage`` (irregularity_node's core: every input decision, then the pipeline) and, with
 uncertain parameters, to an ``UncertaintyStream`` (uncertainty_node's core, its own policy over
 the bank, windows deferred), each piece's odometry first, then its IMU samples. The band lags
 the nominal output by the bank's longer filter delay; the driver holds the nominal samples
@@ -28,10 +28,10 @@ import numpy as np
 from railgsa_ros.bag import ImuStream, open_bag
 from railgsa_ros.bag.reader import iter_imu
 from railgsa_ros.errors import InputError
+from railgsa_ros.input.rate import count_steps
+from railgsa_ros.input.stage import InputOptions, InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
-from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.location import Location, Reference, gnss_pass
 from railgsa_ros.samples import split
 from railgsa_ros.uncertainty import (
@@ -82,7 +82,7 @@ def peek(pieces: Iterable[ImuStream]) -> tuple[ImuStream, Iterator[ImuStream]]:
 
 def nominal_rate_hz(piece: ImuStream, source: Source) -> float:
     """IMU rate (Hz) of a piece (the first one: 65 s at 1 kHz): the periods counted from the
-    median step's over their time (``inverse.rate``: robust to jitter and lost samples), in
+    median step's over their time (``input.rate``: robust to jitter and lost samples), in
     stamp order (the policy re-orders the stamps; arrival order would add negative and double
     steps); InputError when it has no two distinct stamps."""
     steps = np.diff(np.sort(piece.stamps_ns))
@@ -135,11 +135,11 @@ class Driver:
     diameter); ``quantiles`` False: bands of the mean only (``UncertaintyStream``)."""
 
     def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
-                 dists: Mapping[str, Distribution] | None, options: PolicyOptions,
+                 dists: Mapping[str, Distribution] | None, options: InputOptions,
                  speed_scale: float = 1.0, quantiles: bool = True) -> None:
         self.config = config
         self.options = options
-        self.nominal = InputPolicy(config.inversion, vehicle, options=options)
+        self.nominal = InputStage(config.inversion, vehicle, options=options)
         self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True,
                                        quantiles=quantiles)
                      if dists is not None else None)

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.input.sanitize import SMALL, SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.inverse.band import (
     band_edges_hz,
     bandpass_power,
@@ -49,7 +50,6 @@ from railgsa_ros.inverse.multirate import (
     rolloff,
 )
 from railgsa_ros.inverse.quality import Quality
-from railgsa_ros.inverse.sanitize import SMALL, SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
@@ -247,7 +247,7 @@ class InversionPipeline:
 
     def add_distance(self, metres: float) -> None:
         """Move the chainage on by ``metres`` before the next sample (a distance the speeds
-        pushed did not cover: ``InputPolicy`` across samples without a known speed)."""
+        pushed did not cover: ``InputStage`` across samples without a known speed)."""
         if self._chain is None:
             self.start_chainage_m += metres
         else:

@@ -5,7 +5,7 @@ vectorised bank (theta (P, 5)). Every emitted sample k carries the bank outputs 
 coefficients are a fixed linear map of them (``Design.projector``), the mean is exact from the
 coefficients (c_0), and the lower/upper quantiles come from the surrogate on a fixed scrambled
 Sobol' germ sample (``Design.germ_basis``), per sample. The bank is fed by an
-:class:`~railgsa_ros.inverse.policy.InputPolicy` with the nominal vehicle: its decisions (speed,
+:class:`~railgsa_ros.input.stage.InputStage` with the nominal vehicle: its decisions (speed,
 noise, sanitiser, quality) are a function of the input data and the inversion config alone, so
 they equal those of irregularity_node's policy and the band's stamps and qualities are the
 ``track/irregularity`` ones one to one (only the emission lags by the bank's longer FIR delay).
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from railgsa_ros.input.stage import InputOptions, InputStage
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.samples import join, pieces
 from railgsa_ros.uncertainty.config import UncertaintyConfig
@@ -176,7 +176,7 @@ class UncertaintyStream:
     the stamps to match); ``vehicle``: nominal parameters (Table 1 by default); ``dists``:
     uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
     ``noise_variance``: a fixed accelerometer variance, (m/s^2)^2 (None: the policy's rule);
-    ``options``: the policy's PolicyOptions; ``quantiles`` False: the bands hold the mean
+    ``options``: the policy's InputOptions; ``quantiles`` False: the bands hold the mean
     only (lower/upper NaN: the review computes the quantiles of the samples it keeps).
     """
 
@@ -184,13 +184,13 @@ class UncertaintyStream:
                  vehicle: VehicleParams | None = None,
                  dists: Mapping[str, Distribution] | None = None,
                  noise_variance: float | None = None,
-                 options: PolicyOptions | None = None, *, defer: bool = False,
+                 options: InputOptions | None = None, *, defer: bool = False,
                  quantiles: bool = True) -> None:
         self.config = config if config is not None else UncertaintyConfig()
         vehicle = vehicle if vehicle is not None else VehicleParams()
         self.design = build_design(self.config, vehicle,
                                    dists if dists is not None else table3(vehicle))
-        self.policy = InputPolicy(self.config.inversion, vehicle, bank=self.design.theta,
+        self.policy = InputStage(self.config.inversion, vehicle, bank=self.design.theta,
                                   options=options, noise_variance=noise_variance)
         # the sensor terms use the policy's noise floor (its noise decision from the data)
         self.terms = SensorTerms(self.config, self.policy.noise_std_m)
@@ -214,13 +214,13 @@ class UncertaintyStream:
         return self.pipeline.delay_samples
 
     def odometry(self, stamps_ns: np.ndarray, speed_mps: np.ndarray) -> Update:
-        """Odometry samples, as ``InputPolicy.odometry``."""
+        """Odometry samples, as ``InputStage.odometry``."""
         return self.update(self.policy.odometry(stamps_ns, speed_mps))
 
     def imu(self, stamps_ns: np.ndarray, accel: np.ndarray,
             frame_ids: np.ndarray | None = None,
             covariance: np.ndarray | None = None) -> Update:
-        """IMU samples, as ``InputPolicy.imu``: stamps (T,) ns, accel (T, 3) m/s^2, frame ids
+        """IMU samples, as ``InputStage.imu``: stamps (T,) ns, accel (T, 3) m/s^2, frame ids
         (T,), REP 145 covariance (T, 9)."""
         return self.update(self.policy.imu(stamps_ns, accel, frame_ids, covariance))
 
@@ -282,7 +282,7 @@ def offline_bands(stamps_ns: np.ndarray, accel: np.ndarray,
                   vehicle: VehicleParams | None = None,
                   dists: Mapping[str, Distribution] | None = None,
                   noise_variance: float | None = None,
-                  options: PolicyOptions | None = None) -> Band:
+                  options: InputOptions | None = None) -> Band:
     """Bands of a whole stream in memory (tests, calibration ensembles): the node's streaming
     code, odometry (stamps, speeds) first, then the IMU in ``samples.CHUNK`` pieces, flushed;
     stamps equal the nominal policy's stamps for the same input."""

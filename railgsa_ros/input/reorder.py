@@ -23,7 +23,7 @@ import itertools
 
 import numpy as np
 
-from railgsa_ros.inverse.sanitize import SMALL
+from railgsa_ros.input.sanitize import SMALL
 
 #: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) str or object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]

@@ -1,7 +1,7 @@
 """The input policy: every decision about IMU and odometry input, the same live and offline.
 
 ``irregularity_node``, ``uncertainty_node``, ``railgsa invert [--bands]`` and ``railgsa review``
-feed an :class:`InputPolicy` and publish what it returns. It owns (docs/inversion.md, "Input
+feed an :class:`InputStage` and publish what it returns. It owns (docs/inversion.md, "Input
 policy"):
 
 - REP 145 input: accel (T, 3) in the sensor frame, the vertical axis picked by ``accel_axis``;
@@ -22,7 +22,7 @@ policy"):
   reported. ``speed_mps`` is used only with ``use_odom`` false (``--speed`` offline).
 - quality per sample (:class:`~railgsa_ros.inverse.quality.Quality`), carried through the band
   delay line; INVALID outputs have u = NaN.
-- mounting (``inverse.mounting.Mounting``, ``mounting``): the gravity direction estimated from
+- mounting (``input.mounting.Mounting``, ``mounting``): the gravity direction estimated from
   the 3-axis specific force, the vertical projected on it or on a configured rotation, the
   tilt reported, DEGRADED while the axis in use is off it or unsettled.
 - plausibility: gravity on the configured axis and sign, the measured rate against
@@ -43,20 +43,20 @@ import numpy as np
 from scipy.signal import lfilter
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.mounting import Mounting
-from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
-from railgsa_ros.inverse.pipeline import InversionPipeline, Output
-from railgsa_ros.inverse.quality import Quality, quality_counts
-from railgsa_ros.inverse.rate import JITTER_TOLERANCE, CountedSteps, count_blocks
-from railgsa_ros.inverse.reorder import Reorder
-from railgsa_ros.inverse.sanitize import (
+from railgsa_ros.input.mounting import Mounting
+from railgsa_ros.input.rate import JITTER_TOLERANCE, CountedSteps, count_blocks
+from railgsa_ros.input.reorder import Reorder
+from railgsa_ros.input.sanitize import (
     REASONS,
     SMALL,
     SPEED_LIMIT_MPS,
     frame_mask,
     text_array,
 )
+from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
+from railgsa_ros.inverse.pipeline import InversionPipeline, Output
+from railgsa_ros.inverse.quality import Quality, quality_counts
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
 OK, WARN, ERROR = 0, 1, 2  #: finding levels (diagnostic_msgs/DiagnosticStatus levels)
@@ -69,7 +69,7 @@ ODOM_ACCEL_MPS2 = 20.0
 ODOM_NOISE_MPS = 1.0  #: odometry speed noise allowed on top of ODOM_ACCEL_MPS2, m/s
 GRAVITY_TAU_S = 1.0  #: time constant of the per-axis running mean that finds gravity, s
 GRAVITY_TOLERANCE = 0.25  #: the vertical axis must read gravity within this fraction
-RATE_BLOCK = 512  #: stamp steps per rate measurement (``inverse.rate``: counted per stamp)
+RATE_BLOCK = 512  #: stamp steps per rate measurement (``input.rate``: counted per stamp)
 REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
 REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
@@ -97,7 +97,7 @@ _HINTS = {'wrong_frame': "set frame_id to the driver's frame_id or wrong_frame_p
 
 
 @dataclass(frozen=True)
-class PolicyOptions:
+class InputOptions:
     """Input options that are not inversion parameters (the nodes' parameters of these names).
 
     use_odom: speed from odometry (false: ``speed_mps`` for every sample); odom_timeout_s (s):
@@ -105,7 +105,7 @@ class PolicyOptions:
     frame_id is used, with a WARN finding) or 'reject' (strict: such samples are rejected);
     stuck_s (s, 0 = off) and backward_reset_s (s): see ``InputSanitizer``; reorder_window_s
     (s, 0 = off): IMU samples are re-ordered by header stamp within this window before any
-    other decision (``inverse.reorder``; it adds this much latency).
+    other decision (``input.reorder``; it adds this much latency).
     """
 
     use_odom: bool = True
@@ -130,7 +130,7 @@ class PolicyOptions:
                               f'({self.backward_reset_s:g} s), got {self.reorder_window_s!r}')
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any]) -> PolicyOptions:
+    def from_mapping(cls, values: Mapping[str, Any]) -> InputOptions:
         """The options found in ``values`` (e.g. a node's parameters); other keys ignored."""
         return cls(**{f.name: values[f.name] for f in fields(cls) if f.name in values})
 
@@ -171,7 +171,7 @@ def _gravity_verdict(cfg: InversionConfig, last: list[float], bad: bool) -> Find
     return Finding('gravity', ERROR, message)
 
 
-def _speed_verdict(options: PolicyOptions, speed_mps: float, lost: bool, reverse: int,
+def _speed_verdict(options: InputOptions, speed_mps: float, lost: bool, reverse: int,
                    total_reverse: int) -> Finding:
     """The 'speed' finding of a release (``speed_mps``: the fixed speed without odometry;
     ``lost``: its newest sample has no speed; ``reverse``: its samples at negative speed,
@@ -252,19 +252,19 @@ class _Held:
         return out
 
 
-class InputPolicy:
+class InputStage:
     """Odometry and IMU samples in, reconstructed samples with their quality out.
 
     ``config``: InversionConfig; ``vehicle``: the nominal vehicle (VehicleParams or theta (5,)):
     it sets the noise floor, so every policy with the same config and vehicle makes the same
     decisions; ``bank``: theta (P, 5) for a bank pipeline (uncertainty: outputs u (P, K)), else
-    the nominal vehicle is inverted; ``options``: PolicyOptions; ``noise_variance``: a fixed
+    the nominal vehicle is inverted; ``options``: InputOptions; ``noise_variance``: a fixed
     accelerometer variance ((m/s^2)^2) instead of the rule from the data.
     """
 
     def __init__(self, config: InversionConfig | None = None,
                  vehicle: VehicleParams | np.ndarray | None = None, *,
-                 bank: np.ndarray | None = None, options: PolicyOptions | None = None,
+                 bank: np.ndarray | None = None, options: InputOptions | None = None,
                  noise_variance: float | None = None) -> None:
         self.config = config if config is not None else InversionConfig()
         self.theta = as_theta(vehicle if vehicle is not None else VehicleParams())
@@ -272,7 +272,7 @@ class InputPolicy:
             raise ConfigError('vehicle: the policy takes the nominal vehicle (5,); pass a '
                               'parameter bank as bank=')
         self.bank = None if bank is None else np.atleast_2d(as_theta(bank))
-        self.options = options if options is not None else PolicyOptions()
+        self.options = options if options is not None else InputOptions()
         self._fixed_variance = noise_variance
         self.noise_variance: float | None = noise_variance  #: (m/s^2)^2 once decided
         self.noise_source = 'given' if noise_variance is not None else ''
@@ -508,7 +508,7 @@ class InputPolicy:
     def rebuild(self, config: InversionConfig | None = None,
                 vehicle: VehicleParams | np.ndarray | None = None, *,
                 bank: np.ndarray | None = None,
-                options: PolicyOptions | None = None) -> Output:
+                options: InputOptions | None = None) -> Output:
         """A parameter change: flush the old filters (their outputs are returned), build new
         ones that continue the chainage; held samples and the noise decision are kept. A
         change the filters do not see (input options alone; speed_mps while the speed comes
@@ -766,7 +766,7 @@ class InputPolicy:
         return np.array(flags, np.uint8)
 
     def _count(self, steps: np.ndarray) -> list[CountedSteps]:
-        """Each block of RATE_BLOCK stamp steps (ns) of ``steps`` counted (``inverse.rate``)."""
+        """Each block of RATE_BLOCK stamp steps (ns) of ``steps`` counted (``input.rate``)."""
         return count_blocks(steps.reshape(-1, RATE_BLOCK), 1e9 / self.config.rate_hz,
                             self.config.gap_factor)
 
@@ -776,7 +776,7 @@ class InputPolicy:
         rate, DEGRADED after samples lost without a gap (the record closes up around them: its
         time axis is compressed), counted as ``lost``, and under stamp jitter beyond
         JITTER_TOLERANCE periods (stamps reorder: re-ordered, their times wrong; lost ones
-        counted while a period locks), counted as ``jitter`` (:mod:`railgsa_ros.inverse.rate`)."""
+        counted while a period locks), counted as ``jitter`` (:mod:`railgsa_ros.input.rate`)."""
         cfg = self.config
         measured = counted.rate_hz  # counted per stamp: robust to jitter and lost samples
         ok = abs(measured / cfg.rate_hz - 1.0) <= cfg.rate_tolerance
