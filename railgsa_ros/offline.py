@@ -28,8 +28,9 @@ import numpy as np
 from railgsa_ros.bag import ImuStream, open_bag
 from railgsa_ros.bag.reader import iter_imu
 from railgsa_ros.errors import InputError
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.rate import count_steps
-from railgsa_ros.input.stage import InputOptions, InputStage
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.location import Location, Reference, gnss_pass

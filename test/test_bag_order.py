@@ -143,7 +143,8 @@ def test_a_replay_through_the_node_gives_the_offline_result(run: Any, tmp_path: 
     sorted samples."""
     from rclpy.parameter import Parameter
 
-    from railgsa_ros.input.stage import InputOptions, InputStage
+    from railgsa_ros.input.options import InputOptions
+    from railgsa_ros.input.stage import InputStage
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.nodes.irregularity_node import IrregularityNode
     from railgsa_ros.playback.source import BagSource

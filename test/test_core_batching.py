@@ -10,16 +10,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from railgsa_ros.input import sanitize as sanitize_module
-from railgsa_ros.input import stage as stage_module
-from railgsa_ros.input.stage import InputOptions, InputStage
-from railgsa_ros.inverse import pipeline as pipeline_module
+from railgsa_ros.input import held, monitors, noise, odometry, sanitize, stage
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
+from railgsa_ros.inverse import pipeline
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 
 G = 9.80665
 RATE_HZ = 1000.0
 ODOM_EVERY = 20  # 50 Hz odometry
+#: the modules whose scalar paths take batches up to their SMALL samples
+SMALL_PATHS = (stage, held, monitors, noise, odometry, pipeline, sanitize)
 FAST = dict(min_design_speed_mps=40.0, fir_tolerance=1e-4, speed_mps=50.0)  # a short FIR
 
 
@@ -99,9 +101,8 @@ def test_small_batch_paths_give_the_vectorised_result_bit_for_bit(seed, options,
     pieces = batches(np.random.default_rng(seed), s['stamps'].size)
     fast = InputStage(cfg, options=options)
     got = feed(fast, s, pieces)
-    for module, name in ((stage_module, 'SMALL'), (pipeline_module, 'SMALL'),
-                         (sanitize_module, 'SMALL')):
-        monkeypatch.setattr(module, name, 0)  # every batch through the numpy paths
+    for module in SMALL_PATHS:
+        monkeypatch.setattr(module, 'SMALL', 0)  # every batch through the numpy paths
     slow = InputStage(cfg, options=options)
     same(got, feed(slow, s, pieces))
     assert fast.counters == slow.counters and fast.findings == slow.findings
@@ -127,9 +128,8 @@ def test_mounting_projection_small_paths_bit_for_bit(monkeypatch):
     pieces = batches(np.random.default_rng(3), s['stamps'].size)
     fast = InputStage(cfg)
     got = feed(fast, s, pieces)
-    for module, name in ((stage_module, 'SMALL'), (pipeline_module, 'SMALL'),
-                         (sanitize_module, 'SMALL')):
-        monkeypatch.setattr(module, name, 0)
+    for module in SMALL_PATHS:
+        monkeypatch.setattr(module, 'SMALL', 0)
     slow = InputStage(cfg)
     same(got, feed(slow, s, pieces))
     assert fast.counters == slow.counters and fast.findings == slow.findings

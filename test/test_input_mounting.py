@@ -15,7 +15,8 @@ from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.imu import imu_spec
 from railgsa_ros.input import mounting
-from railgsa_ros.input.stage import OK, WARN, InputStage
+from railgsa_ros.input.findings import OK, WARN
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.quality import Quality

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from railgsa_ros.imu import imu_spec
-from railgsa_ros.input.stage import ERROR, OK, WARN, InputOptions, InputStage
+from railgsa_ros.input.findings import ERROR, OK, WARN
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.quality import Quality
@@ -327,7 +329,7 @@ def test_noise_is_the_median_of_the_first_reported_variances_skipping_absent_and
     variance over the first NOISE_SAMPLES samples; REP 145 covariance[0] == -1 (acceleration
     absent: the sample is rejected as nan) and all-zero covariances (unknown) are skipped;
     later samples do not count; with none reported, noise_std_mps2^2."""
-    from railgsa_ros.input.stage import NOISE_SAMPLES
+    from railgsa_ros.input.noise import NOISE_SAMPLES
 
     run = run_scenario('german-low', 20.0, 1.0, None, 'adxl355', seed=6)
     n = 300

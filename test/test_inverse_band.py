@@ -103,7 +103,8 @@ def test_d3_at_low_speed_is_flagged_by_the_noise_floor(speed, expected):
     the band, noise_limit_m 0.1 mm) makes every output INVALID below ~14 m/s, DEGRADED below
     ~22 m/s; the threshold is checked against the integral itself."""
     from railgsa_ros.imu import accel_covariance, imu_spec
-    from railgsa_ros.input.stage import InputOptions, InputStage
+    from railgsa_ros.input.options import InputOptions
+    from railgsa_ros.input.stage import InputStage
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.inverse.observability import band_noise_std
     from railgsa_ros.vehicle import VehicleParams

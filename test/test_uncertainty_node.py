@@ -48,7 +48,7 @@ def run() -> Any:
 def offline_reference(stamps_ns: np.ndarray, accel_z: np.ndarray,
                       frame_ids: np.ndarray | None = None) -> Any:
     """offline_bands of the node's settings: fixed speed (use_odom false), accel on z."""
-    from railgsa_ros.input.stage import InputOptions
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.uncertainty import offline_bands
 
     accel = np.zeros((stamps_ns.size, 3))
@@ -254,7 +254,7 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     """The stream's policy takes the node's odometry and the IMU-reported variance: equal to a
     stream with the same odometry and that variance fixed."""
 
-    from railgsa_ros.input.stage import InputOptions
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.uncertainty import UncertaintyStream
 
     node, listener = rig(use_odom=True, method='kalman', band='none', qoi='',

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.input.stage import InputOptions
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.inverse.quality import Quality

@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # the command imports its modules when it runs (fast --help)
     import numpy as np
 
     from railgsa_ros.bag import BagWriter, ImuStream
-    from railgsa_ros.input.stage import InputOptions
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.location import Location, Reference
     from railgsa_ros.offline import Driver, Source
@@ -107,7 +107,7 @@ def build_config(args: argparse.Namespace, rate_hz: float
     from railgsa_ros.cli._params import read_params
     from railgsa_ros.cli.review import LOCATION_KEYS, reference
     from railgsa_ros.errors import ConfigError
-    from railgsa_ros.input.stage import InputOptions
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
 
     known = set(InversionConfig.__dataclass_fields__) | set(POLICY_PARAMS) | set(LOCATION_KEYS)

@@ -25,7 +25,7 @@ from railgsa_ros.bag.reader import GnssFixes, iter_imu
 from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.fleet.defects import DETECT_FRACTION
 from railgsa_ros.fleet.gnss import GNSS_TOPIC
-from railgsa_ros.input.stage import InputOptions
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.observability import NoiseFloor
 from railgsa_ros.offline import (
     Driver,

@@ -27,7 +27,8 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.input.stage import InputOptions, InputStage
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.band import (
     band_limits,
     bandpass_power,

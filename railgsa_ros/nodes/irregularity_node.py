@@ -46,7 +46,8 @@ from rclpy.parameter import Parameter
 
 from railgsa_ros.bag.messages import POINT_STAMPED
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.input.stage import InputOptions, InputStage
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.grid import GridOutput, GridStream
 from railgsa_ros.inverse.pipeline import Output

@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
 
-from railgsa_ros.input.stage import REORDER_WINDOW_S
+from railgsa_ros.input.options import REORDER_WINDOW_S
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.grid import DEFAULT_STEP_M
 from railgsa_ros.location import DIRECTIONS

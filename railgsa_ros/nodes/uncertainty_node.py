@@ -39,7 +39,8 @@ from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 
 from railgsa_ros.bag.messages import VECTOR3_STAMPED
-from railgsa_ros.input.stage import InputOptions, InputStage
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, Report, make_status, quality_values
 from railgsa_ros.nodes.imu_conversion import NS_PER_S, ImuBatch
 from railgsa_ros.nodes.lifecycle import run

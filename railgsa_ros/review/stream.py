@@ -28,7 +28,8 @@ import numpy as np
 from railgsa_ros import samples
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError
-from railgsa_ros.input.stage import Finding, InputOptions
+from railgsa_ros.input.findings import Finding
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Location, Reference
 from railgsa_ros.offline import (

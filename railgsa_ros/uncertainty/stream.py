@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from railgsa_ros.input.stage import InputOptions, InputStage
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.samples import join, pieces
