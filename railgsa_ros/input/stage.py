@@ -41,7 +41,7 @@ from railgsa_ros.input.noise import NOISE_SAMPLES, Noise
 from railgsa_ros.input.odometry import Odometry
 from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.reorder import Reorder
-from railgsa_ros.input.sanitize import REASONS, SMALL, text_array
+from railgsa_ros.input.sanitize import REASONS, SMALL, InputSanitizer, text_array
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
@@ -75,6 +75,7 @@ class InputStage:
         self.options = options if options is not None else InputOptions()
         self._noise = Noise(noise_variance)
         self.pipeline: InversionPipeline | None = None
+        self._sanitizer: InputSanitizer | None = None  # built with the pipeline
         self._counts: Counter[str] = Counter()
         self._retired: Counter[str] = Counter()
         self._findings = Findings()
@@ -147,9 +148,9 @@ class InputStage:
         speed_unknown, reverse, gravity_invalid, rate_invalid, lost (samples missing between
         stamps closer than a gap), wrong_frame_accepted and the
         emitted outputs by quality: valid, degraded, invalid."""
-        live = Counter(self.pipeline.counters) if self.pipeline is not None else Counter()
         mounting = Counter({'mounting_degraded': self.mounting.degraded})
-        return dict(self._retired + live + self._counts + mounting + self._reorder.counters)
+        return dict(self._retired + self._live() + self._counts + mounting
+                    + self._reorder.counters)
 
     @property
     def findings(self) -> list[Finding]:
@@ -201,14 +202,14 @@ class InputStage:
         out = Output.concat([drained, self._release(final=True)], self._channels)
         if self.pipeline is None:
             return out
-        return Output.concat([out, self.finish(self.pipeline.flush())], self._channels)
+        return Output.concat([out, self._restart()], self._channels)
 
     def reset(self, reason: str = 'request') -> Output:
         """Restart the filters (pending outputs emitted, the tail INVALID); held samples go to
         the restarted filters."""
         if self.pipeline is None:
             return self._empty()
-        return self.finish(self.pipeline.reset(reason))
+        return self._restart(reason)
 
     def rebuild(self, config: InversionConfig | None = None,
                 vehicle: VehicleParams | np.ndarray | None = None, *,
@@ -226,8 +227,8 @@ class InputStage:
             vehicle is None or np.array_equal(as_theta(vehicle), self.theta))
         out = self._empty()
         if self.pipeline is not None and not keep:
-            out = self.finish(self.pipeline.flush())
-            self._retired.update(self.pipeline.counters)
+            out = self._restart()
+            self._retired.update(self._live())
             self._start_chainage = self.pipeline.chainage_m
             self.pipeline = None
         self.config = config if config is not None else self.config
@@ -238,9 +239,8 @@ class InputStage:
             monitor.config = self.config
         self._odom.options = self._frame.options = self.options
         self._reorder.configure(*self.options.reorder_limits(self.config.rate_hz))
-        if keep and self.pipeline is not None:  # the running filters take the new options
-            self.pipeline.sanitizer.set_limits(self.options.stuck_s,
-                                               self.options.backward_reset_s)
+        if keep and self._sanitizer is not None:  # the running filters take the new options
+            self._sanitizer.set_limits(self.options.stuck_s, self.options.backward_reset_s)
             self._counts['reconfigure'] += 1
             return out
         self._counts['rebuild'] += 1
@@ -292,14 +292,27 @@ class InputStage:
             raise ConfigError('speed_mps: use_odom is false, so speed_mps is the speed of every '
                               'sample and must be > 0')
 
+    def _live(self) -> Counter[str]:
+        """The counts of the running sanitiser and pipeline (none before they are built)."""
+        if self.pipeline is None or self._sanitizer is None:
+            return Counter()
+        return self._sanitizer.counters + Counter(self.pipeline.counters)
+
+    def _restart(self, reason: str | None = None) -> Output:
+        """Flush the pipeline (``reason``: count it as a reset) and restart the sanitiser."""
+        assert self.pipeline is not None and self._sanitizer is not None
+        out = self.pipeline.flush() if reason is None else self.pipeline.reset(reason)
+        self._sanitizer.reset()
+        return self.finish(out)
+
     def _build(self) -> None:
-        """The pipeline and the noise floor for the decided noise variance."""
+        """The sanitiser, the pipeline and the noise floor for the decided noise variance."""
         cfg, opt, variance = self.config, self.options, self.noise_variance
         assert variance is not None  # called once the noise is decided
+        self._sanitizer = InputSanitizer.for_config(cfg, opt.stuck_s, opt.backward_reset_s)
         self.pipeline = InversionPipeline(
             cfg, self.bank if self.bank is not None else self.theta, variance,
-            start_chainage_m=self._start_chainage, stuck_s=opt.stuck_s,
-            backward_reset_s=opt.backward_reset_s, nominal=self.theta)
+            start_chainage_m=self._start_chainage, nominal=self.theta)
         self._speed_changed = 0  # the new pipeline's speed_change count seen so far
         self._noise.design(cfg, self.theta, self._findings)
 
@@ -421,20 +434,23 @@ class InputStage:
             self._rest.check(accel, speed, known)
         quality = np.maximum(flags, self._noise.speed_quality(self.config, speed, known))
         checked = self._frame.checked(frames)
-        before = pipeline.accepted
+        sanitizer = self._sanitizer
+        assert sanitizer is not None  # built with the pipeline
+        before = sanitizer.counters['accepted']
         missed = self._odom.missed_distance(stamps, speed, known)
-        if not missed:  # the usual case: one push
-            out = pipeline.push(stamps, vert, speed, checked, quality)
+        if not missed:  # the usual case: one batch
+            clean = sanitizer.process(stamps, vert, speed, checked)
+            out = pipeline.feed(clean, clean.carry(quality))
         else:  # the chainage moves on where the speed is known again
             parts, lo = [], 0
             for at, metres in (*missed, (count, 0.0)):
-                parts.append(pipeline.push(stamps[lo:at], vert[lo:at], speed[lo:at],
-                                           None if checked is None else checked[lo:at],
-                                           quality[lo:at]))
+                clean = sanitizer.process(stamps[lo:at], vert[lo:at], speed[lo:at],
+                                          None if checked is None else checked[lo:at])
+                parts.append(pipeline.feed(clean, clean.carry(quality[lo:at])))
                 pipeline.add_distance(metres)
                 lo = at
             out = Output.concat(parts, self._channels)
-        self._reject_finding(count, pipeline.accepted - before)
+        self._reject_finding(count, sanitizer.counters['accepted'] - before)
         return self.finish(out)
 
     def _reject_finding(self, pushed: int, accepted: int) -> None:
