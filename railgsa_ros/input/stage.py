@@ -41,7 +41,7 @@ from railgsa_ros.input.noise import NOISE_SAMPLES, Noise
 from railgsa_ros.input.odometry import Odometry
 from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.reorder import Reorder
-from railgsa_ros.input.sanitize import REASONS, SMALL, InputSanitizer, text_array
+from railgsa_ros.input.sanitize import REASONS, SMALL, Clean, InputSanitizer, text_array
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
@@ -76,6 +76,9 @@ class InputStage:
         self._noise = Noise(noise_variance)
         self.pipeline: InversionPipeline | None = None
         self._sanitizer: InputSanitizer | None = None  # built with the pipeline
+        self._bank_theta: np.ndarray | None = None  # a bank pipeline fed alongside, (P, 5)
+        self._bank: InversionPipeline | None = None
+        self._bank_out: list[Output] = []
         self._counts: Counter[str] = Counter()
         self._retired: Counter[str] = Counter()
         self._findings = Findings()
@@ -230,7 +233,7 @@ class InputStage:
             out = self._restart()
             self._retired.update(self._live())
             self._start_chainage = self.pipeline.chainage_m
-            self.pipeline = None
+            self.pipeline = self._bank = None
         self.config = config if config is not None else self.config
         self.theta = as_theta(vehicle) if vehicle is not None else self.theta
         self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
@@ -258,6 +261,21 @@ class InputStage:
         assert self.pipeline is not None  # deciding the noise builds it
         return self.pipeline
 
+    def feed_bank(self, theta: np.ndarray) -> None:
+        """Hand the accepted batches to a bank pipeline over theta (P, 5) as well (the
+        uncertainty band of the same stream, offline): the same decisions, outputs u (P, K)
+        (NaN where INVALID) collected for ``bank_outputs``."""
+        self._bank_theta = np.atleast_2d(as_theta(theta))
+        if self.pipeline is not None:
+            self._build_bank()
+
+    def bank_outputs(self) -> Output:
+        """The bank pipeline's outputs since the last call (``feed_bank``)."""
+        theta = self._bank_theta
+        out = Output.concat(self._bank_out, None if theta is None else theta.shape[0])
+        self._bank_out = []
+        return out
+
     def noise_std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
         """Sensor noise propagated into the band, sigma_u (m), at the given speeds (m/s)."""
         return self._noise.sigma_m(speeds_mps)
@@ -271,13 +289,7 @@ class InputStage:
         self._counts.update(counts)
         if self.pipeline is not None:
             self._acceleration_finding(self.pipeline.speed_changed)
-        if not counts['invalid']:
-            return out
-        invalid = np.asarray(out.quality == _INVALID)
-        u = np.array(out.u_m, dtype=float)
-        u[..., invalid] = np.nan
-        return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps,
-                      out.gap_std_m)
+        return _invalid_nan(out) if counts['invalid'] else out
 
     # ------------------------------------------------------------------ building
     @property
@@ -302,8 +314,30 @@ class InputStage:
         """Flush the pipeline (``reason``: count it as a reset) and restart the sanitiser."""
         assert self.pipeline is not None and self._sanitizer is not None
         out = self.pipeline.flush() if reason is None else self.pipeline.reset(reason)
+        if self._bank is not None:
+            self._keep_bank(self._bank.flush() if reason is None else self._bank.reset(reason))
         self._sanitizer.reset()
         return self.finish(out)
+
+    def _feed(self, clean: Clean, quality: np.ndarray) -> Output:
+        """A sanitised batch into the pipeline (and the bank pipeline)."""
+        assert self.pipeline is not None
+        out = self.pipeline.feed(clean, quality)
+        if self._bank is not None:
+            self._keep_bank(self._bank.feed(clean, quality))
+        return out
+
+    def _keep_bank(self, out: Output) -> None:
+        if len(out) and out.quality is not None and (out.quality == _INVALID).any():
+            out = _invalid_nan(out)
+        self._bank_out.append(out)
+
+    def _build_bank(self) -> None:
+        """The bank pipeline of ``feed_bank``, graded as the nominal one."""
+        if self._bank_theta is not None:
+            self._bank = InversionPipeline(self.config, self._bank_theta, self.noise_variance,
+                                           start_chainage_m=self._start_chainage,
+                                           nominal=self.theta)
 
     def _build(self) -> None:
         """The sanitiser, the pipeline and the noise floor for the decided noise variance."""
@@ -313,6 +347,7 @@ class InputStage:
         self.pipeline = InversionPipeline(
             cfg, self.bank if self.bank is not None else self.theta, variance,
             start_chainage_m=self._start_chainage, nominal=self.theta)
+        self._build_bank()
         self._speed_changed = 0  # the new pipeline's speed_change count seen so far
         self._noise.design(cfg, self.theta, self._findings)
 
@@ -440,14 +475,16 @@ class InputStage:
         missed = self._odom.missed_distance(stamps, speed, known)
         if not missed:  # the usual case: one batch
             clean = sanitizer.process(stamps, vert, speed, checked)
-            out = pipeline.feed(clean, clean.carry(quality))
+            out = self._feed(clean, clean.carry(quality))
         else:  # the chainage moves on where the speed is known again
             parts, lo = [], 0
             for at, metres in (*missed, (count, 0.0)):
                 clean = sanitizer.process(stamps[lo:at], vert[lo:at], speed[lo:at],
                                           None if checked is None else checked[lo:at])
-                parts.append(pipeline.feed(clean, clean.carry(quality[lo:at])))
-                pipeline.add_distance(metres)
+                parts.append(self._feed(clean, clean.carry(quality[lo:at])))
+                for each in (pipeline, self._bank):
+                    if each is not None:
+                        each.add_distance(metres)
                 lo = at
             out = Output.concat(parts, self._channels)
         self._reject_finding(count, sanitizer.counters['accepted'] - before)
@@ -490,3 +527,12 @@ class InputStage:
             self._findings.set('acceleration', OK, (
                 f'speed steady across the band windows of the latest outputs; {total} '
                 'earlier outputs were DEGRADED by speed changes (acceleration, braking)'))
+
+
+def _invalid_nan(out: Output) -> Output:
+    """``out`` with u = NaN where INVALID."""
+    assert out.quality is not None
+    invalid = np.asarray(out.quality == _INVALID)
+    u = np.array(out.u_m, dtype=float)
+    u[..., invalid] = np.nan
+    return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps, out.gap_std_m)

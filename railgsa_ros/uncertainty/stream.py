@@ -178,7 +178,10 @@ class UncertaintyStream:
     uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
     ``noise_variance``: a fixed accelerometer variance, (m/s^2)^2 (None: the policy's rule);
     ``options``: the policy's InputOptions; ``quantiles`` False: the bands hold the mean
-    only (lower/upper NaN: the review computes the quantiles of the samples it keeps).
+    only (lower/upper NaN: the review computes the quantiles of the samples it keeps);
+    ``stage``: an input stage of the same stream to share (offline: the nominal one, which
+    then feeds the bank pipeline; ``update`` and ``close`` take its ``bank_outputs``), None:
+    a stage of its own (``odometry``, ``imu``, ``flush``).
     """
 
     def __init__(self, config: UncertaintyConfig | None = None,
@@ -186,13 +189,17 @@ class UncertaintyStream:
                  dists: Mapping[str, Distribution] | None = None,
                  noise_variance: float | None = None,
                  options: InputOptions | None = None, *, defer: bool = False,
-                 quantiles: bool = True) -> None:
+                 quantiles: bool = True, stage: InputStage | None = None) -> None:
         self.config = config if config is not None else UncertaintyConfig()
         vehicle = vehicle if vehicle is not None else VehicleParams()
         self.design = build_design(self.config, vehicle,
                                    dists if dists is not None else table3(vehicle))
-        self.policy = InputStage(self.config.inversion, vehicle, bank=self.design.theta,
-                                  options=options, noise_variance=noise_variance)
+        if stage is None:
+            stage = InputStage(self.config.inversion, vehicle, bank=self.design.theta,
+                               options=options, noise_variance=noise_variance)
+        else:
+            stage.feed_bank(self.design.theta)
+        self.policy = stage
         # the sensor terms use the policy's noise floor (its noise decision from the data)
         self.terms = SensorTerms(self.config, self.policy.noise_std_m)
         self.windows = WindowAnalyzer(self.config, self.design, defer=defer)
@@ -237,7 +244,11 @@ class UncertaintyStream:
 
     def flush(self) -> Update:
         """End of a stream (or a restart): emit every pending sample, close the window."""
-        update = self.update(self.policy.flush())
+        return self.close(self.policy.flush())
+
+    def close(self, out: Output) -> Update:
+        """Band and windows of a stream's last outputs ``out``; the open window closed."""
+        update = self.update(out)
         return Update(update.band, update.windows + self.windows.close(), update.bank_u_m,
                       update.sensor_std_m)
 
