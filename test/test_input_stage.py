@@ -98,13 +98,13 @@ def test_standstill_and_low_speed_are_invalid_nan_and_cruise_is_valid(stop_and_g
     policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     out = offline(run, policy)
     q, v = out.quality, out.speed_mps
-    assert np.all(q[v < policy.v_invalid] == Quality.INVALID)
+    assert np.all(q[v < policy.noise.v_invalid] == Quality.INVALID)
     assert np.all(np.isnan(out.u_m[q == Quality.INVALID]))
     assert np.all(np.isfinite(out.u_m[q != Quality.INVALID]))
     standing = run.speed_mps == 0
     assert standing.sum() > 5000 and np.all(q[standing] == Quality.INVALID)
     # below min_design_speed_mps the band design is held: at best DEGRADED
-    assert np.all(q[(v >= policy.v_invalid) & (v < 10.0)] >= Quality.DEGRADED)
+    assert np.all(q[(v >= policy.noise.v_invalid) & (v < 10.0)] >= Quality.DEGRADED)
     # the cruise at 25 m/s is VALID; accelerating and braking at ~1.5 m/s^2 is DEGRADED
     # (the speed across the band window is off its design by more than 5 %)
     cruise = np.abs(v - 25.0) < 0.01
@@ -281,7 +281,7 @@ def test_low_speed_threshold_matches_a_noise_only_monte_carlo():
         return InputStage(cfg, options=InputOptions(use_odom=False, stuck_s=0.0),
                            noise_variance=sigma ** 2)
 
-    v_invalid = policy(5.0).v_invalid
+    v_invalid = policy(5.0).noise.v_invalid
     assert 2.0 < v_invalid < 3.0  # where sigma_u(v) = 1 mm for this sensor
     for speed in (1.1 * v_invalid, 3.0, 5.0):
         p = policy(speed)
@@ -289,7 +289,7 @@ def test_low_speed_threshold_matches_a_noise_only_monte_carlo():
         kept = out.quality != Quality.INVALID
         assert kept.sum() > 800 * rate
         measured = np.std(out.u_m[kept])
-        predicted = float(p.noise_std_m(np.array([speed]))[0])
+        predicted = float(p.noise.sigma_m(np.array([speed]))[0])
         # 900 s of noise in a band 0.1-1.7 Hz wide: about 500 independent values, 3 % error
         assert measured == pytest.approx(predicted, rel=0.08), speed
     # at 1.1 v_invalid the measured noise is just below the limit; below v_invalid: INVALID

@@ -114,9 +114,9 @@ def test_d3_at_low_speed_is_flagged_by_the_noise_floor(speed, expected):
     sigma = band_noise_std(VehicleParams().as_array(), 'd3', 2, 1000.0, var, [speed])[0]
     assert (sigma > cfg.noise_limit_m) == (expected == 'invalid')
     policy = InputStage(cfg, options=InputOptions(use_odom=False), noise_variance=var)
-    assert (speed < policy.v_invalid) == (expected == 'invalid')
-    assert (policy.v_invalid <= speed < policy.v_degraded) == (expected == 'degraded')
-    assert 12.0 < policy.v_invalid < 16.0 and 19.0 < policy.v_degraded < 25.0
+    assert (speed < policy.noise.v_invalid) == (expected == 'invalid')
+    assert (policy.noise.v_invalid <= speed < policy.noise.v_degraded) == (expected == 'degraded')
+    assert 12.0 < policy.noise.v_invalid < 16.0 and 19.0 < policy.noise.v_degraded < 25.0
 
 
 def test_the_noise_floor_table_is_shared_only_by_the_same_vehicle_and_sensor():

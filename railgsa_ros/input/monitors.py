@@ -12,21 +12,24 @@ finding (docs/inversion.md, "Input policy"):
 - frame: a driver's own frame_id is accepted with a WARN, or rejected (``wrong_frame_policy``);
 - mounting: the finding of ``input.mounting.Mounting`` (tilt, settling);
 - rest: standing still, the magnitude of the mean specific force against gravity (scale
-  factor and bias).
+  factor and bias);
+- rejected: ERROR while every sample is rejected; acceleration: WARN while outputs are
+  DEGRADED for the speed change across their band window.
 """
 
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 from scipy.signal import lfilter
 
-from railgsa_ros.input.findings import ERROR, OK, WARN, Finding, Findings
+from railgsa_ros.input.findings import ERROR, HINTS, OK, WARN, Finding, Findings
 from railgsa_ros.input.mounting import Mounting
 from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.rate import JITTER_TOLERANCE, CountedSteps, count_blocks
-from railgsa_ros.input.sanitize import SMALL, frame_mask
+from railgsa_ros.input.sanitize import REASONS, SMALL, frame_mask
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.observability import STANDSTILL_MPS
 from railgsa_ros.inverse.quality import Quality
@@ -36,6 +39,7 @@ GRAVITY_TOLERANCE = 0.25  #: the vertical axis must read gravity within this fra
 RATE_BLOCK = 512  #: stamp steps per rate measurement (``input.rate``: counted per stamp)
 REST_S = 1.0  #: standstill (in samples at rate_hz) before the scale and bias check at rest
 REST_TOLERANCE = 0.01  #: at rest |mean specific force| must be gravity within this fraction
+REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 AXES = 'xyz'
 _VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
 
@@ -337,3 +341,63 @@ class MountingMonitor:
         if m.version != self._version:
             self._version = m.version
             self._findings.set('mounting', m.level, m.message)
+
+
+class RejectMonitor(Monitor):
+    """The 'rejected' finding: ERROR while every sample is rejected, since the start or for
+    REJECT_RUN_S; ``totals``: the stage's counters (read only when none was accepted)."""
+
+    def __init__(self, config: InversionConfig, counts: Counter[str], findings: Findings,
+                 totals: Callable[[], dict[str, int]]) -> None:
+        super().__init__(config, counts, findings)
+        self._totals = totals
+        self._run = 0  # samples pushed since the last accepted one
+
+    def check(self, pushed: int, accepted: int) -> None:
+        """After a release of ``pushed`` samples of which the sanitiser accepted ``accepted``."""
+        if accepted:
+            self._run = 0
+            if 'rejected' in self._findings:
+                self._findings.set('rejected', OK, 'samples accepted')
+            return
+        self._run += pushed
+        counters = self._totals()
+        if counters.get('accepted', 0) and self._run < REJECT_RUN_S * self.config.rate_hz:
+            return
+        reasons = {r: counters.get(r, 0) for r in REASONS if counters.get(r, 0)}
+        if not reasons:
+            return
+        top = max(reasons, key=lambda r: reasons[r])
+        text = ', '.join(f'{k} {v}' for k, v in reasons.items())
+        self._findings.set('rejected', ERROR,
+                           f'every IMU sample is rejected ({text}): {HINTS[top]}')
+
+
+class AccelerationMonitor(Monitor):
+    """The 'acceleration' finding: WARN while outputs are DEGRADED for the speed change across
+    their band window, OK again once outputs come without; ``seen``: the running pipeline's
+    count so far (0 for a new pipeline)."""
+
+    def __init__(self, config: InversionConfig, counts: Counter[str], findings: Findings
+                 ) -> None:
+        super().__init__(config, counts, findings)
+        self.seen = 0
+
+    def check(self, changed: int, retired: int) -> None:
+        """``changed``: the pipeline's speed_change count so far; ``retired``: earlier
+        pipelines' (rebuilt)."""
+        if changed == self.seen and 'acceleration' not in self._findings:
+            return  # the usual case: steady speed, nothing reported yet
+        total = changed + retired
+        tol = self.config.window_speed_tolerance
+        if changed != self.seen:
+            self.seen = changed
+            self._findings.set('acceleration', WARN, (
+                f'{total} outputs DEGRADED so far: the speed changed by more than {tol:.0%} '
+                'across their band window (acceleration, braking), so the time-domain band '
+                'maps wavelengths off the band; the band on distance (--grid) follows the '
+                'speed'))
+        elif (shown := self._findings.get('acceleration')) is not None and shown.level != OK:
+            self._findings.set('acceleration', OK, (
+                f'speed steady across the band windows of the latest outputs; {total} '
+                'earlier outputs were DEGRADED by speed changes (acceleration, braking)'))

@@ -10,6 +10,7 @@ import numpy as np
 
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.input.sanitize import SMALL
+from railgsa_ros.inverse.config import InversionConfig
 
 #: default re-order window, s: a recorder's receipt jitter and a driver's bursts are a few ms
 REORDER_WINDOW_S = 0.05
@@ -58,3 +59,9 @@ class InputOptions:
         """The re-order buffer's window (s), backward jump (s) and cap (samples) at rate_hz."""
         cap = max(SMALL, int(np.ceil(REORDER_CAP * self.reorder_window_s * rate_hz)))
         return self.reorder_window_s, self.backward_reset_s, cap
+
+    def check_speed(self, config: InversionConfig) -> None:
+        """ConfigError unless the speed is known: from odometry, or a positive speed_mps."""
+        if self.use_odom is False and config.speed_mps <= 0:
+            raise ConfigError('speed_mps: use_odom is false, so speed_mps is the speed of every '
+                              'sample and must be > 0')

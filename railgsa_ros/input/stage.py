@@ -27,13 +27,15 @@ from dataclasses import replace
 import numpy as np
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.input.findings import ERROR, HINTS, OK, WARN, Finding, Findings
+from railgsa_ros.input.findings import Finding, Findings
 from railgsa_ros.input.held import NO_STAMP, Held
 from railgsa_ros.input.monitors import (
+    AccelerationMonitor,
     FrameMonitor,
     GravityMonitor,
     MountingMonitor,
     RateMonitor,
+    RejectMonitor,
     RestMonitor,
 )
 from railgsa_ros.input.mounting import Mounting
@@ -41,14 +43,13 @@ from railgsa_ros.input.noise import NOISE_SAMPLES, Noise
 from railgsa_ros.input.odometry import Odometry
 from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.reorder import Reorder
-from railgsa_ros.input.sanitize import REASONS, SMALL, Clean, InputSanitizer, text_array
+from railgsa_ros.input.sanitize import SMALL, Clean, InputSanitizer, text_array
 from railgsa_ros.inverse.config import InversionConfig
-from railgsa_ros.inverse.observability import STANDSTILL_MPS, NoiseFloor
+from railgsa_ros.inverse.observability import STANDSTILL_MPS
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality, quality_counts
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
-REJECT_RUN_S = 1.0  #: status ERROR after this long (in samples at rate_hz) with none accepted
 _INVALID = int(Quality.INVALID)
 
 
@@ -73,7 +74,7 @@ class InputStage:
                               'parameter bank as bank=')
         self.bank = None if bank is None else np.atleast_2d(as_theta(bank))
         self.options = options if options is not None else InputOptions()
-        self._noise = Noise(noise_variance)
+        self.noise = Noise(noise_variance)  #: the noise decision, its floor and speed limits
         self.pipeline: InversionPipeline | None = None
         self._sanitizer: InputSanitizer | None = None  # built with the pipeline
         self._bank_theta: np.ndarray | None = None  # a bank pipeline fed alongside, (P, 5)
@@ -88,12 +89,14 @@ class InputStage:
         self._rate = RateMonitor(self.config, self._counts, self._findings)
         self._rest = RestMonitor(self.config, self._counts, self._findings)
         self._frame = FrameMonitor(self.config, self.options, self._counts, self._findings)
-        self._reject_run = 0  # samples pushed since the last accepted one
+        self._rejected = RejectMonitor(self.config, self._counts, self._findings,
+                                       lambda: self.counters)
+        self._acceleration = AccelerationMonitor(self.config, self._counts, self._findings)
         self._start_chainage = 0.0
         self.mounting = Mounting(self.config)  #: gravity estimate and vertical projection
         self._mounting = MountingMonitor(self.mounting, self._findings)
         self._reorder = Reorder(*self.options.reorder_limits(self.config.rate_hz))
-        self._check_units()
+        self.options.check_speed(self.config)
         if noise_variance is not None:
             self._build()
 
@@ -121,27 +124,12 @@ class InputStage:
     @property
     def noise_variance(self) -> float | None:
         """The accelerometer noise variance, (m/s^2)^2, once decided."""
-        return self._noise.variance
+        return self.noise.variance
 
     @property
     def noise_source(self) -> str:
         """Where the noise variance came from ('' before it is decided)."""
-        return self._noise.source
-
-    @property
-    def noise(self) -> NoiseFloor | None:
-        """The sensor noise floor in the band, once the noise is decided."""
-        return self._noise.floor
-
-    @property
-    def v_invalid(self) -> float:
-        """Speed (m/s) below which the band is unobservable (NaN before the noise decision)."""
-        return self._noise.v_invalid
-
-    @property
-    def v_degraded(self) -> float:
-        """Speed (m/s) below which the outputs are DEGRADED by the noise (NaN before)."""
-        return self._noise.v_degraded
+        return self.noise.source
 
     @property
     def counters(self) -> dict[str, int]:
@@ -195,7 +183,7 @@ class InputStage:
         before = self._reorder.counters.total()
         released = self._reorder.push(stamps, accel, frames, cov)
         if self._reorder.counters.total() != before:
-            self._order_finding()
+            self._findings.set('order', *self._reorder.verdict())
         return self._intake(*released)
 
     def flush(self) -> Output:
@@ -238,7 +226,8 @@ class InputStage:
         self.theta = as_theta(vehicle) if vehicle is not None else self.theta
         self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
         self.options = options if options is not None else self.options
-        for monitor in (self._odom, self._gravity, self._rate, self._rest, self._frame):
+        for monitor in (self._odom, self._gravity, self._rate, self._rest, self._frame,
+                        self._rejected, self._acceleration):
             monitor.config = self.config
         self._odom.options = self._frame.options = self.options
         self._reorder.configure(*self.options.reorder_limits(self.config.rate_hz))
@@ -248,7 +237,7 @@ class InputStage:
             return out
         self._counts['rebuild'] += 1
         self.mounting.configure(self.config)
-        self._check_units()
+        self.options.check_speed(self.config)
         if self.noise_variance is not None:
             self._build()
         return out
@@ -276,10 +265,6 @@ class InputStage:
         self._bank_out = []
         return out
 
-    def noise_std_m(self, speeds_mps: np.ndarray) -> np.ndarray:
-        """Sensor noise propagated into the band, sigma_u (m), at the given speeds (m/s)."""
-        return self._noise.sigma_m(speeds_mps)
-
     def finish(self, out: Output) -> Output:
         """Count pipeline outputs by quality, the 'acceleration' finding, and set u = NaN
         where INVALID."""
@@ -288,7 +273,8 @@ class InputStage:
         counts = quality_counts(out.quality)
         self._counts.update(counts)
         if self.pipeline is not None:
-            self._acceleration_finding(self.pipeline.speed_changed)
+            self._acceleration.check(self.pipeline.speed_changed,
+                                     self._retired['speed_change'])
         return _invalid_nan(out) if counts['invalid'] else out
 
     # ------------------------------------------------------------------ building
@@ -298,11 +284,6 @@ class InputStage:
 
     def _empty(self) -> Output:
         return Output.concat([], self._channels)
-
-    def _check_units(self) -> None:
-        if self.options.use_odom is False and self.config.speed_mps <= 0:
-            raise ConfigError('speed_mps: use_odom is false, so speed_mps is the speed of every '
-                              'sample and must be > 0')
 
     def _live(self) -> Counter[str]:
         """The counts of the running sanitiser and pipeline (none before they are built)."""
@@ -315,7 +296,8 @@ class InputStage:
         assert self.pipeline is not None and self._sanitizer is not None
         out = self.pipeline.flush() if reason is None else self.pipeline.reset(reason)
         if self._bank is not None:
-            self._keep_bank(self._bank.flush() if reason is None else self._bank.reset(reason))
+            self._bank_out.append(_invalid_nan(self._bank.flush() if reason is None
+                                               else self._bank.reset(reason)))
         self._sanitizer.reset()
         return self.finish(out)
 
@@ -324,13 +306,8 @@ class InputStage:
         assert self.pipeline is not None
         out = self.pipeline.feed(clean, quality)
         if self._bank is not None:
-            self._keep_bank(self._bank.feed(clean, quality))
+            self._bank_out.append(_invalid_nan(self._bank.feed(clean, quality)))
         return out
-
-    def _keep_bank(self, out: Output) -> None:
-        if len(out) and out.quality is not None and (out.quality == _INVALID).any():
-            out = _invalid_nan(out)
-        self._bank_out.append(out)
 
     def _build_bank(self) -> None:
         """The bank pipeline of ``feed_bank``, graded as the nominal one."""
@@ -348,11 +325,11 @@ class InputStage:
             cfg, self.bank if self.bank is not None else self.theta, variance,
             start_chainage_m=self._start_chainage, nominal=self.theta)
         self._build_bank()
-        self._speed_changed = 0  # the new pipeline's speed_change count seen so far
-        self._noise.design(cfg, self.theta, self._findings)
+        self._acceleration.seen = 0  # the new pipeline's speed_change count seen so far
+        self.noise.design(cfg, self.theta, self._findings)
 
     def _decide_noise(self) -> None:
-        self._noise.decide(self.config)
+        self.noise.decide(self.config)
         self._build()
 
     # ------------------------------------------------------------------ arrival
@@ -390,7 +367,7 @@ class InputStage:
             else:
                 absent = np.isnan(cov[:, 0]) | (cov[:, 0] == -1.0)
                 accel[absent] = np.nan
-                self._noise.note(self.config, cov, absent, held.received)
+                self.noise.note(self.config, cov, absent, held.received)
         self._frame.check(frames)
         # the gravity mean takes the rows within the saturation limit (the sanitiser rejects
         # the others: one 1e30 sample made the mean miss gravity for a minute)
@@ -419,22 +396,6 @@ class InputStage:
         self._mounting.report()
         held.extend(stamps, accel, vert, frames, np.maximum(flags, mount), arrival)
         return self._release(final=False)
-
-    def _order_finding(self) -> None:
-        """The 'order' finding: IMU stamps out of arrival order, re-ordered or late."""
-        counts, largest = self._reorder.counters, self._reorder.largest_ns
-        window = self.options.reorder_window_s
-        if counts['late']:
-            self._findings.set('order', WARN, (
-                f'{counts["late"]} IMU samples arrived more than reorder_window_s '
-                f'({window * 1e3:g} ms) after a newer stamp (by up to '
-                f'{largest["late"] / 1e6:.4g} ms): not re-ordered, rejected as out_of_order; '
-                'check the driver clock, or raise reorder_window_s above that'))
-        else:
-            self._findings.set('order', OK, (
-                f'{counts["reordered"]} IMU samples re-ordered by header stamp (by up to '
-                f'{largest["reordered"] / 1e6:.4g} ms, within reorder_window_s '
-                f'{window * 1e3:g} ms)'))
 
     # ------------------------------------------------------------------ release
     def _ready(self) -> int:
@@ -467,7 +428,7 @@ class InputStage:
             self._odom.report(known.size - int(np.count_nonzero(known)),
                               int(np.count_nonzero(speed < 0)), bool(known[-1]))
             self._rest.check(accel, speed, known)
-        quality = np.maximum(flags, self._noise.speed_quality(self.config, speed, known))
+        quality = np.maximum(flags, self.noise.speed_quality(self.config, speed, known))
         checked = self._frame.checked(frames)
         sanitizer = self._sanitizer
         assert sanitizer is not None  # built with the pipeline
@@ -487,52 +448,14 @@ class InputStage:
                         each.add_distance(metres)
                 lo = at
             out = Output.concat(parts, self._channels)
-        self._reject_finding(count, sanitizer.counters['accepted'] - before)
+        self._rejected.check(count, sanitizer.counters['accepted'] - before)
         return self.finish(out)
-
-    def _reject_finding(self, pushed: int, accepted: int) -> None:
-        """ERROR while every sample is rejected: since the start, or for REJECT_RUN_S."""
-        if accepted:
-            self._reject_run = 0
-            if 'rejected' in self._findings:
-                self._findings.set('rejected', OK, 'samples accepted')
-            return
-        self._reject_run += pushed
-        counters = self.counters
-        if counters.get('accepted', 0) and self._reject_run < REJECT_RUN_S * self.config.rate_hz:
-            return
-        reasons = {r: counters.get(r, 0) for r in REASONS if counters.get(r, 0)}
-        if not reasons:
-            return
-        top = max(reasons, key=lambda r: reasons[r])
-        text = ', '.join(f'{k} {v}' for k, v in reasons.items())
-        self._findings.set('rejected', ERROR,
-                           f'every IMU sample is rejected ({text}): {HINTS[top]}')
-
-    def _acceleration_finding(self, changed: int) -> None:
-        """WARN while outputs are DEGRADED for the speed change across their band window
-        (``changed``: the pipeline's count so far), OK again once outputs come without."""
-        if changed == self._speed_changed and 'acceleration' not in self._findings:
-            return  # the usual case: steady speed, nothing reported yet
-        total = changed + self._retired['speed_change']
-        tol = self.config.window_speed_tolerance
-        if changed != self._speed_changed:
-            self._speed_changed = changed
-            self._findings.set('acceleration', WARN, (
-                f'{total} outputs DEGRADED so far: the speed changed by more than {tol:.0%} '
-                'across their band window (acceleration, braking), so the time-domain band '
-                'maps wavelengths off the band; the band on distance (--grid) follows the '
-                'speed'))
-        elif (shown := self._findings.get('acceleration')) is not None and shown.level != OK:
-            self._findings.set('acceleration', OK, (
-                f'speed steady across the band windows of the latest outputs; {total} '
-                'earlier outputs were DEGRADED by speed changes (acceleration, braking)'))
 
 
 def _invalid_nan(out: Output) -> Output:
     """``out`` with u = NaN where INVALID."""
-    assert out.quality is not None
-    invalid = np.asarray(out.quality == _INVALID)
+    if not len(out) or out.quality is None or not (invalid := out.quality == _INVALID).any():
+        return out
     u = np.array(out.u_m, dtype=float)
     u[..., invalid] = np.nan
     return Output(out.stamps_ns, out.chainage_m, u, out.quality, out.speed_mps, out.gap_std_m)

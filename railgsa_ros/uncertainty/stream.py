@@ -201,7 +201,7 @@ class UncertaintyStream:
             stage.feed_bank(self.design.theta)
         self.policy = stage
         # the sensor terms use the policy's noise floor (its noise decision from the data)
-        self.terms = SensorTerms(self.config, self.policy.noise_std_m)
+        self.terms = SensorTerms(self.config, self.policy.noise.sigma_m)
         self.windows = WindowAnalyzer(self.config, self.design, defer=defer)
         self._quantiles = ((self.config.lower_quantile, self.config.upper_quantile)
                            if quantiles else None)
