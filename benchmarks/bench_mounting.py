@@ -17,9 +17,9 @@ import argparse
 import numpy as np
 
 from railgsa_ros.imu import imu_spec
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.mount_sim import horizontal_motion, mounted
 from railgsa_ros.samples import pieces
@@ -41,8 +41,8 @@ def simulate(seed: int, duration: float, brake: bool):
     return run, body
 
 
-def invert(run, accel, **config) -> tuple[Output, InputPolicy]:
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz, **config))
+def invert(run, accel, **config) -> tuple[Output, InputStage]:
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz, **config))
     outs = [policy.odometry(run.stamps_ns[::20], run.speed_mps[::20])]
     cov = np.zeros((run.stamps_ns.size, 9))
     cov[:, [0, 4, 8]] = run.accel_covariance

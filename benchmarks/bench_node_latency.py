@@ -52,7 +52,7 @@ import time
 
 import numpy as np
 
-from railgsa_ros.inverse.policy import REORDER_WINDOW_S
+from railgsa_ros.input.options import REORDER_WINDOW_S
 from railgsa_ros.system import reserve_domain
 
 SPEED_MPS = 20.0

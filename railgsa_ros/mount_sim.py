@@ -5,7 +5,7 @@ its up axis, so the tests and ``benchmarks/bench_mounting.py`` add what a real c
 longitudinal acceleration dv/dt (traction, braking), lateral cant deficiency in curves
 (quasi-static, held for tens of seconds) and lateral/longitudinal vibration (band-limited
 noise). The sensor rotation uses scipy's ``Rotation`` (not the core's own
-``inverse.mounting.rotation``), an independent truth.
+``input.mounting.rotation``), an independent truth.
 """
 
 from __future__ import annotations

@@ -1,15 +1,16 @@
 """The offline driver: a bag's IMU stream through the nodes' streaming cores, in bounded chunks.
 
 ``railgsa invert``, ``invert --bands`` and ``railgsa review`` all run through :class:`Driver`:
-pieces of the bag (``bag.iter_imu``, about 65,536 IMU samples each) go to the nominal
-``InputPolicy`` (irregularity_node's core: every input decision, then the pipeline) and, with
-uncertain parameters, to an ``UncertaintyStream`` (uncertainty_node's core, its own policy over
-the bank, windows deferred), each piece's odometry first, then its IMU samples. The band lags
-the nominal output by the bank's longer filter delay; the driver holds the nominal samples
-until their band arrives and hands both out together as :class:`Step` objects. Memory: one
-piece, the delay lines and the odometry of the pending samples, whatever the length of the run.
+pieces of the bag (``bag.iter_imu``, about 65,536 IMU samples each) go to one ``InputStage``
+(irregularity_node's core: every input decision once), each piece's odometry first, then its
+IMU samples; it hands the accepted batches to the nominal pipeline and, with uncertain
+parameters, to the bank pipeline of an ``UncertaintyStream`` (uncertainty_node's core, sharing
+the stage, windows deferred). The band lags the nominal output by the bank's longer filter
+delay; the driver holds the nominal samples until their band arrives and hands both out
+together as :class:`Step` objects. Memory: one piece, the delay lines and the odometry of the
+pending samples, whatever the length of the run.
 
-Speed: the policy's (the newest odometry sample at or before each stamp within
+Speed: the stage's (the newest odometry sample at or before each stamp within
 odom_timeout_s, else unknown: INVALID outputs), the odometry times its scale (1 unless GNSS
 corrected it, ``railgsa_ros.location``); a fixed speed only when the options say so
 (``use_odom`` false with ``speed_mps``).
@@ -28,10 +29,11 @@ import numpy as np
 from railgsa_ros.bag import ImuStream, open_bag
 from railgsa_ros.bag.reader import iter_imu
 from railgsa_ros.errors import InputError
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.rate import count_steps
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
-from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.location import Location, Reference, gnss_pass
 from railgsa_ros.samples import split
 from railgsa_ros.uncertainty import (
@@ -82,7 +84,7 @@ def peek(pieces: Iterable[ImuStream]) -> tuple[ImuStream, Iterator[ImuStream]]:
 
 def nominal_rate_hz(piece: ImuStream, source: Source) -> float:
     """IMU rate (Hz) of a piece (the first one: 65 s at 1 kHz): the periods counted from the
-    median step's over their time (``inverse.rate``: robust to jitter and lost samples), in
+    median step's over their time (``input.rate``: robust to jitter and lost samples), in
     stamp order (the policy re-orders the stamps; arrival order would add negative and double
     steps); InputError when it has no two distinct stamps."""
     steps = np.diff(np.sort(piece.stamps_ns))
@@ -127,21 +129,22 @@ def _given(values: np.ndarray | None) -> np.ndarray:
 
 
 class Driver:
-    """Chunks of a bag in, Steps out: the nominal policy and, with ``dists``, the uncertainty
-    stream (windows deferred to ``windows()``), fed the same samples in the same order, so that
-    their decisions (and stamps, qualities) are the same; their outputs joined on the stamps
-    (the band comes later by the difference of the filter delays). ``options``: the policies'
-    input options; ``speed_scale``: factor on the odometry speeds (GNSS-corrected wheel
-    diameter); ``quantiles`` False: bands of the mean only (``UncertaintyStream``)."""
+    """Chunks of a bag in, Steps out: one input stage per stream (``nominal``), which hands
+    the accepted batches to the nominal pipeline and, with ``dists``, to the uncertainty
+    stream's bank pipeline (windows deferred to ``windows()``): one set of decisions, so the
+    band's samples are the nominal ones, later by the difference of the filter delays.
+    ``options``: the stage's input options; ``speed_scale``: factor on the odometry speeds
+    (GNSS-corrected wheel diameter); ``quantiles`` False: bands of the mean only
+    (``UncertaintyStream``)."""
 
     def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
-                 dists: Mapping[str, Distribution] | None, options: PolicyOptions,
+                 dists: Mapping[str, Distribution] | None, options: InputOptions,
                  speed_scale: float = 1.0, quantiles: bool = True) -> None:
         self.config = config
         self.options = options
-        self.nominal = InputPolicy(config.inversion, vehicle, options=options)
+        self.nominal = InputStage(config.inversion, vehicle, options=options)
         self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True,
-                                       quantiles=quantiles)
+                                       quantiles=quantiles, stage=self.nominal)
                      if dists is not None else None)
         self.speed_scale = float(speed_scale)
         self._pending = Output.concat([])  # nominal samples awaiting a band
@@ -161,21 +164,26 @@ class Driver:
         outs: list[Output] = []
         updates: list[Update] = []
         if self.options.use_odom and piece.odom_stamps_ns.size:
-            odometry = (piece.odom_stamps_ns, piece.speed_mps * self.speed_scale)
-            outs.append(self.nominal.odometry(*odometry))
-            if self.bank is not None:
-                updates.append(self.bank.odometry(*odometry))
+            outs.append(self.nominal.odometry(piece.odom_stamps_ns,
+                                              piece.speed_mps * self.speed_scale))
+            updates += self._band(last=False)
         if piece.stamps_ns.size:
-            imu = (piece.stamps_ns, piece.accel, piece.frame_ids, piece.covariance)
-            outs.append(self.nominal.imu(*imu))
-            if self.bank is not None:
-                updates.append(self.bank.imu(*imu))
+            outs.append(self.nominal.imu(piece.stamps_ns, piece.accel, piece.frame_ids,
+                                         piece.covariance))
+            updates += self._band(last=False)
         return self._join(outs, updates)
 
     def flush(self) -> Step:
         """End of the run: every pending sample."""
-        return self._join([self.nominal.flush()],
-                          [self.bank.flush()] if self.bank is not None else [])
+        return self._join([self.nominal.flush()], self._band(last=True))
+
+    def _band(self, last: bool) -> list[Update]:
+        """The band of the bank outputs the stage made in its latest call (``last``: the
+        stream's end, the open window closed); none without a bank."""
+        if self.bank is None:
+            return []
+        bank = self.nominal.bank_outputs()
+        return [self.bank.close(bank) if last else self.bank.update(bank)]
 
     def windows(self) -> list[Sensitivity]:
         """The sensitivity records of the closed windows (after ``flush``: all of them)."""
@@ -188,12 +196,9 @@ class Driver:
             ready, self._pending = self._pending, Output.concat([])
             return Step.of(ready)
         band = Band.concat([u.band for u in updates])
-        if len(band) > len(self._pending):
-            raise AssertionError('band samples without irregularity samples')
-        ready, self._pending = split(self._pending, len(band))
-        if not (np.array_equal(band.stamps_ns, ready.stamps_ns) and band.quality is not None
-                and np.array_equal(band.quality, ready.graded)):
-            raise AssertionError('band and irregularity samples differ')
+        if len(band) > len(self._pending):  # the join below needs the longer bank delay
+            raise AssertionError('band samples ahead of the irregularity samples')
+        ready, self._pending = split(self._pending, len(band))  # the same samples, later
         if not len(band):
             return Step.of(ready)
         bank_u = np.concatenate([u.bank_u_m for u in updates], axis=1)

@@ -143,8 +143,9 @@ def test_a_replay_through_the_node_gives_the_offline_result(run: Any, tmp_path: 
     sorted samples."""
     from rclpy.parameter import Parameter
 
+    from railgsa_ros.input.options import InputOptions
+    from railgsa_ros.input.stage import InputStage
     from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
     from railgsa_ros.nodes.irregularity_node import IrregularityNode
     from railgsa_ros.playback.source import BagSource
 
@@ -164,7 +165,7 @@ def test_a_replay_through_the_node_gives_the_offline_result(run: Any, tmp_path: 
     finally:
         node.destroy_node()
     outs = [o for o in outs if o is not None and len(o)]
-    policy = InputPolicy(InversionConfig(speed_mps=25.0), options=PolicyOptions(use_odom=False))
+    policy = InputStage(InversionConfig(speed_mps=25.0), options=InputOptions(use_odom=False))
     cov = np.zeros((run.stamps_ns.size, 9))
     cov[:, 0::4] = run.accel_covariance
     order = np.sort(np.argsort(run.stamps_ns + receipt(run.stamps_ns.size, 4),

@@ -10,16 +10,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from railgsa_ros.inverse import pipeline as pipeline_module
-from railgsa_ros.inverse import policy as policy_module
-from railgsa_ros.inverse import sanitize as sanitize_module
+from railgsa_ros.input import held, monitors, noise, odometry, sanitize, stage
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
+from railgsa_ros.inverse import pipeline
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 
 G = 9.80665
 RATE_HZ = 1000.0
 ODOM_EVERY = 20  # 50 Hz odometry
+#: the modules whose scalar paths take batches up to their SMALL samples
+SMALL_PATHS = (stage, held, monitors, noise, odometry, pipeline, sanitize)
 FAST = dict(min_design_speed_mps=40.0, fir_tolerance=1e-4, speed_mps=50.0)  # a short FIR
 
 
@@ -61,7 +63,7 @@ def batches(rng: np.random.Generator, n: int) -> list[tuple[int, int]]:
     return list(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True))
 
 
-def feed(policy: InputPolicy, s: dict, pieces: list[tuple[int, int]] | None) -> Output:
+def feed(policy: InputStage, s: dict, pieces: list[tuple[int, int]] | None) -> Output:
     """Offline (pieces None): all odometry, then the IMU at once. Live: the IMU in ``pieces``,
     each odometry message once an IMU sample at or after its stamp has come."""
     imu = (s['stamps'], s['accel'], s['frames'], s['cov'])
@@ -86,8 +88,8 @@ def same(a: Output, b: Output) -> None:
         assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), name
 
 
-CASES = [(1, PolicyOptions(), 'spectral'),
-         (2, PolicyOptions(use_odom=False, wrong_frame_policy='reject', stuck_s=0.0),
+CASES = [(1, InputOptions(), 'spectral'),
+         (2, InputOptions(use_odom=False, wrong_frame_policy='reject', stuck_s=0.0),
           'feedback')]
 
 
@@ -97,12 +99,11 @@ def test_small_batch_paths_give_the_vectorised_result_bit_for_bit(seed, options,
     s = stream(seed)
     cfg = InversionConfig(rate_hz=RATE_HZ, method=method, **FAST)
     pieces = batches(np.random.default_rng(seed), s['stamps'].size)
-    fast = InputPolicy(cfg, options=options)
+    fast = InputStage(cfg, options=options)
     got = feed(fast, s, pieces)
-    for module, name in ((policy_module, 'SMALL'), (pipeline_module, 'SMALL'),
-                         (sanitize_module, 'SMALL')):
-        monkeypatch.setattr(module, name, 0)  # every batch through the numpy paths
-    slow = InputPolicy(cfg, options=options)
+    for module in SMALL_PATHS:
+        monkeypatch.setattr(module, 'SMALL', 0)  # every batch through the numpy paths
+    slow = InputStage(cfg, options=options)
     same(got, feed(slow, s, pieces))
     assert fast.counters == slow.counters and fast.findings == slow.findings
     # the stream reached every decision the small paths make
@@ -116,7 +117,7 @@ def test_mounting_projection_small_paths_bit_for_bit(monkeypatch):
     """A sensor tilted 10 deg, mounting estimate: the ramps, the unsettled and the settled (slew
     limited) projection, saturated rows kept out of the estimate, in small and vectorised
     batches."""
-    from railgsa_ros.inverse import mounting
+    from railgsa_ros.input import mounting
     from railgsa_ros.mount_sim import mounted
 
     monkeypatch.setattr(mounting, 'SETTLE_S', 3.0)
@@ -125,12 +126,11 @@ def test_mounting_projection_small_paths_bit_for_bit(monkeypatch):
     s['accel'][[500, 4100, 6000], 1] = [30.0, 1e300, -25.0]  # beyond the range: not estimated
     cfg = InversionConfig(rate_hz=RATE_HZ, **FAST)
     pieces = batches(np.random.default_rng(3), s['stamps'].size)
-    fast = InputPolicy(cfg)
+    fast = InputStage(cfg)
     got = feed(fast, s, pieces)
-    for module, name in ((policy_module, 'SMALL'), (pipeline_module, 'SMALL'),
-                         (sanitize_module, 'SMALL')):
-        monkeypatch.setattr(module, name, 0)
-    slow = InputPolicy(cfg)
+    for module in SMALL_PATHS:
+        monkeypatch.setattr(module, 'SMALL', 0)
+    slow = InputStage(cfg)
     same(got, feed(slow, s, pieces))
     assert fast.counters == slow.counters and fast.findings == slow.findings
     assert slow.mounting.settled and slow.mounting.in_use != mounting.axis_vector('z')

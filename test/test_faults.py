@@ -112,7 +112,7 @@ def test_chainage_continues_across_a_rebuild(run: Any, node: Any) -> None:
 def test_interleaved_clocks_reset_at_every_backward_jump() -> None:
     """Two clocks 10 s apart interleaved in one batch: every sample after the first restarts
     the filters (1000 forward gaps, 999 backward time resets); no recursion limit."""
-    from railgsa_ros.inverse.sanitize import InputSanitizer
+    from railgsa_ros.input.sanitize import InputSanitizer
 
     k = np.arange(2000)
     stamps = T0_NS + (k // 2) * 1_000_000 + (k % 2) * 10_000_000_000

@@ -19,9 +19,9 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
+from railgsa_ros.input.sanitize import REASONS, InputSanitizer
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline
-from railgsa_ros.inverse.sanitize import REASONS, InputSanitizer
 from railgsa_ros.uncertainty import UncertaintyConfig, UncertaintyStream
 from railgsa_ros.uncertainty.parameters import table3
 from railgsa_ros.vehicle import VehicleParams

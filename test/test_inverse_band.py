@@ -103,19 +103,20 @@ def test_d3_at_low_speed_is_flagged_by_the_noise_floor(speed, expected):
     the band, noise_limit_m 0.1 mm) makes every output INVALID below ~14 m/s, DEGRADED below
     ~22 m/s; the threshold is checked against the integral itself."""
     from railgsa_ros.imu import accel_covariance, imu_spec
+    from railgsa_ros.input.options import InputOptions
+    from railgsa_ros.input.stage import InputStage
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.inverse.observability import band_noise_std
-    from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
     from railgsa_ros.vehicle import VehicleParams
 
     var = accel_covariance(imu_spec('adxl355'))
     cfg = InversionConfig(band='d3', speed_mps=speed)
     sigma = band_noise_std(VehicleParams().as_array(), 'd3', 2, 1000.0, var, [speed])[0]
     assert (sigma > cfg.noise_limit_m) == (expected == 'invalid')
-    policy = InputPolicy(cfg, options=PolicyOptions(use_odom=False), noise_variance=var)
-    assert (speed < policy.v_invalid) == (expected == 'invalid')
-    assert (policy.v_invalid <= speed < policy.v_degraded) == (expected == 'degraded')
-    assert 12.0 < policy.v_invalid < 16.0 and 19.0 < policy.v_degraded < 25.0
+    policy = InputStage(cfg, options=InputOptions(use_odom=False), noise_variance=var)
+    assert (speed < policy.noise.v_invalid) == (expected == 'invalid')
+    assert (policy.noise.v_invalid <= speed < policy.noise.v_degraded) == (expected == 'degraded')
+    assert 12.0 < policy.noise.v_invalid < 16.0 and 19.0 < policy.noise.v_degraded < 25.0
 
 
 def test_the_noise_floor_table_is_shared_only_by_the_same_vehicle_and_sensor():

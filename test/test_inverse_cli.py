@@ -8,9 +8,9 @@ from rosbags.highlevel import AnyReader
 
 from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
+from railgsa_ros.input.rate import count_steps
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, vertical
-from railgsa_ros.inverse.rate import count_steps
 from railgsa_ros.inverse.score import score
 from railgsa_ros.inverse.sensor import sensor_delay_s
 from railgsa_ros.scenario import run_scenario

@@ -207,12 +207,12 @@ def test_fill_at_standstill_is_the_mean():
 def test_scale_factor_checked_at_rest_against_gravity(scale, level):
     """The IMU model at standstill (odometry 0 m/s) with a scale-factor error: the policy's
     'rest' finding measures it (the 3 mg bias on z adds 0.3 %)."""
-    from railgsa_ros.inverse.policy import InputPolicy
+    from railgsa_ros.input.stage import InputStage
 
     spec = imu_spec('adxl355', scale_factor=scale, dropout_fraction=0)
     t = np.arange(0, 3.0, 1 / 4000)
     imu = measure(t, np.zeros(t.size), spec, seed=1)
-    policy = InputPolicy(InversionConfig())
+    policy = InputStage(InversionConfig())
     policy.odometry(imu.stamps_ns[::50], np.zeros(imu.stamps_ns[::50].size))
     policy.imu(imu.stamps_ns, imu.accel)
     policy.flush()

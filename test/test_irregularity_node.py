@@ -51,14 +51,15 @@ def run() -> Any:
 
 def _policy(params: dict[str, Any], noise_variance: float | None = None,
             vehicle: Any = None) -> Any:
+    from railgsa_ros.input.options import InputOptions
+    from railgsa_ros.input.stage import InputStage
     from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 
     cfg = {**PARAMS, **params}
-    options = PolicyOptions.from_mapping(cfg)
+    options = InputOptions.from_mapping(cfg)
     config = InversionConfig.from_mapping({k: v for k, v in cfg.items()
                                            if k not in ('use_odom', *options.__dict__)})
-    return InputPolicy(config, vehicle, options=options, noise_variance=noise_variance)
+    return InputStage(config, vehicle, options=options, noise_variance=noise_variance)
 
 
 def _accel(accel_z: np.ndarray) -> np.ndarray:
@@ -530,7 +531,7 @@ def test_rate_hz_disagreeing_with_the_data_live_is_an_error_and_invalid(run: Any
                                                                         rig: Callable) -> None:
     """rate_hz 500 for 1 kHz data: docs/inversion.md, 'rate': INVALID from the end of the first
     block of 512 stamp steps on, ERROR naming the measured rate and the fix."""
-    from railgsa_ros.inverse.policy import RATE_BLOCK
+    from railgsa_ros.input.monitors import RATE_BLOCK
 
     stamps, acc = run.stamps_ns[:3000] + T0_NS, run.accel[:3000, 2]
     ref = offline(stamps, acc, rate_hz=500.0)

@@ -2,7 +2,7 @@
 (acceleration, cruise with ripple, braking, standstill, acceleration) as a bag, replayed through
 irregularity_node and uncertainty_node, against ``railgsa invert --bands`` of the same bag.
 
-Independent truth: the offline CLI (one chunked pass, the same InputPolicy); every published
+Independent truth: the offline CLI (one chunked pass, the same InputStage); every published
 (stamp, chainage, quality, u) must equal it, so the speed, quality and reset decisions depend on
 the data only, not on how the samples arrived.
 """

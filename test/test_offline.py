@@ -16,8 +16,8 @@ import pytest
 from railgsa_ros.bag import BagWriter, RunEncoder, read_imu, write_run
 from railgsa_ros.bag.reader import NAV_SAT_FIX, iter_imu
 from railgsa_ros.cli.main import main
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Reference, from_local, to_local
 from railgsa_ros.offline import Source
@@ -90,7 +90,7 @@ def _whole_run(bag: Path, config: UncertaintyConfig) -> tuple[Output, np.ndarray
     """The old way: the whole bag in memory, one call of the input policy (independent of the
     driver); the outputs that are not INVALID, their speeds and all outputs."""
     stream = read_imu(bag)
-    policy = InputPolicy(config.inversion)
+    policy = InputStage(config.inversion)
     out = Output.concat([policy.odometry(stream.odom_stamps_ns, stream.speed_mps),
                          policy.imu(stream.stamps_ns, stream.accel, stream.frame_ids,
                                     stream.covariance), policy.flush()])

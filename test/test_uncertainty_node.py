@@ -48,7 +48,7 @@ def run() -> Any:
 def offline_reference(stamps_ns: np.ndarray, accel_z: np.ndarray,
                       frame_ids: np.ndarray | None = None) -> Any:
     """offline_bands of the node's settings: fixed speed (use_odom false), accel on z."""
-    from railgsa_ros.inverse.policy import PolicyOptions
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.uncertainty import offline_bands
 
     accel = np.zeros((stamps_ns.size, 3))
@@ -56,7 +56,7 @@ def offline_reference(stamps_ns: np.ndarray, accel_z: np.ndarray,
     config = node_config()
     config = config.with_(inversion=config.inversion.with_(speed_mps=40.0))
     return offline_bands(stamps_ns, accel, None, frame_ids, config=config,
-                         options=PolicyOptions(use_odom=False))
+                         options=InputOptions(use_odom=False))
 
 
 def node_config() -> Any:
@@ -254,7 +254,7 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     """The stream's policy takes the node's odometry and the IMU-reported variance: equal to a
     stream with the same odometry and that variance fixed."""
 
-    from railgsa_ros.inverse.policy import PolicyOptions
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.uncertainty import UncertaintyStream
 
     node, listener = rig(use_odom=True, method='kalman', band='none', qoi='',
@@ -271,7 +271,7 @@ def test_odometry_speed_and_reported_kalman_noise_are_used(run: Any, rig: Callab
     config = node_config().with_(qoi='', inversion=node_config().inversion.with_(
         method='kalman', band='none'))
     ref = UncertaintyStream(config, noise_variance=4e-6,
-                            options=PolicyOptions(use_odom=True, odom_timeout_s=10.0,
+                            options=InputOptions(use_odom=True, odom_timeout_s=10.0,
                                                   reorder_window_s=0.0))
     accel = np.zeros((len(stamps), 3))
     accel[:, 2] = acc

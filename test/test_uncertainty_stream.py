@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline
-from railgsa_ros.inverse.policy import PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.scenario import run_scenario
 from railgsa_ros.uncertainty import Band, UncertaintyConfig, UncertaintyStream, offline_bands
@@ -33,7 +33,7 @@ RATE = 500.0
 # the paper profile's largest deviation (70 m) at t = 7 s, the paper's quantity of interest.
 PAPER = InversionConfig(method='feedback', band='none', rate_hz=RATE, gap_policy='reset')
 # the ideal sensor repeats values on the flat start of the paper profile: no stuck check
-IDEAL = PolicyOptions(stuck_s=0.0)
+IDEAL = InputOptions(stuck_s=0.0)
 WARM = round(PAPER.taper_s * RATE)  # the fade-in after the start: INVALID outputs
 DISTS = table3()
 COLUMNS = [PARAM_NAMES.index(n) for n in DISTS]

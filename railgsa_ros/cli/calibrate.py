@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
     from railgsa_ros.cli.invert import sensor_delay
     from railgsa_ros.errors import ConfigError, InputError
     from railgsa_ros.fileio import atomic_output
+    from railgsa_ros.input.mounting import Mounting
     from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.inverse.mounting import Mounting
     from railgsa_ros.track import load_csv
     from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
     from railgsa_ros.uncertainty.parameters import load_uncertainty, parse_parameter, table3

@@ -1,6 +1,6 @@
 """``railgsa invert``: reconstruct the track irregularity from the IMU stream of a bag.
 
-Streams the bag in pieces (``offline.Driver``: the nodes' ``InputPolicy``, every input decision
+Streams the bag in pieces (``offline.Driver``: the nodes' ``InputStage``, every input decision
 - speed, noise, sanitising, quality - then the pipeline) and writes as the samples come out:
 ``t_s,chainage_m,u_m,quality[,lower_m,mean_m,upper_m],km,lat,lon`` (t_s = IMU stamp in s;
 quality 0 VALID, 1 DEGRADED, 2 INVALID with u = nan; km-post of the chainage; WGS84 position
@@ -31,8 +31,8 @@ if TYPE_CHECKING:  # the command imports its modules when it runs (fast --help)
     import numpy as np
 
     from railgsa_ros.bag import BagWriter, ImuStream
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.inverse.config import InversionConfig
-    from railgsa_ros.inverse.policy import PolicyOptions
     from railgsa_ros.location import Location, Reference
     from railgsa_ros.offline import Driver, Source
     from railgsa_ros.uncertainty import Band
@@ -102,16 +102,16 @@ POLICY_PARAMS = ('odom_timeout_s', 'wrong_frame_policy', 'stuck_s', 'backward_re
 
 
 def build_config(args: argparse.Namespace, rate_hz: float
-                 ) -> tuple[InversionConfig, PolicyOptions, Reference]:
-    """(InversionConfig, PolicyOptions, location Reference) from the params file (if any), then
+                 ) -> tuple[InversionConfig, InputOptions, Reference]:
+    """(InversionConfig, InputOptions, location Reference) from the params file (if any), then
     the command line. rate_hz defaults to the bag's measured rate; a given rate_hz that
     disagrees with it beyond rate_tolerance is a ConfigError (the filters would be designed for
     another rate)."""
     from railgsa_ros.cli._params import read_params
     from railgsa_ros.cli.review import LOCATION_KEYS, reference
     from railgsa_ros.errors import ConfigError
+    from railgsa_ros.input.options import InputOptions
     from railgsa_ros.inverse.config import NODE_NAME, InversionConfig
-    from railgsa_ros.inverse.policy import PolicyOptions
 
     known = set(InversionConfig.__dataclass_fields__) | set(POLICY_PARAMS) | set(LOCATION_KEYS)
     params = read_params(args.params, (NODE_NAME,), known, 'invert') if args.params else {}
@@ -136,7 +136,7 @@ def build_config(args: argparse.Namespace, rate_hz: float
                           f'IMU rate {rate_hz:.6g} Hz by {off:.3g} %: remove rate_hz (the '
                           'default is the measured rate) or correct it')
     try:
-        policy = PolicyOptions(use_odom=args.speed is None, **options)
+        policy = InputOptions(use_odom=args.speed is None, **options)
     except ConfigError as exc:
         raise ConfigError(f'{source}: {exc}') from None
     return cfg, policy, location
@@ -171,7 +171,7 @@ class Inputs:
     source: Source
     pieces: Iterator[ImuStream]
     config: InversionConfig
-    options: PolicyOptions
+    options: InputOptions
     vehicle: VehicleParams
     location: Location
 

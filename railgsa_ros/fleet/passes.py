@@ -25,8 +25,8 @@ from railgsa_ros.bag.reader import GnssFixes, iter_imu
 from railgsa_ros.errors import InputError, RailGsaError
 from railgsa_ros.fleet.defects import DETECT_FRACTION
 from railgsa_ros.fleet.gnss import GNSS_TOPIC
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.observability import NoiseFloor
-from railgsa_ros.inverse.policy import PolicyOptions
 from railgsa_ros.offline import (
     Driver,
     Source,
@@ -145,7 +145,7 @@ def analyse_pass(bag: str | Path, options: PassOptions) -> PassResult:
     inv = cfg.inversion
     if options.odom_topic not in topics:
         raise InputError(f'{bag}: no odometry on {options.odom_topic}: the speed is unknown')
-    driver = Driver(cfg, options.vehicle, None, PolicyOptions())
+    driver = Driver(cfg, options.vehicle, None, InputOptions())
     t0 = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
     profile, clock = GridBuilder(options.dx_m), GridBuilder(options.dx_m)
     seen = {'samples': 0, 'last': t0}

@@ -22,7 +22,7 @@ from scipy import signal
 
 from railgsa_ros.health.items import FAIL, PASS, WARN, Item
 from railgsa_ros.imu import UG, G, ImuSpec
-from railgsa_ros.inverse.policy import REORDER_WINDOW_S
+from railgsa_ros.input.options import REORDER_WINDOW_S
 
 RATE_TOLERANCE = 0.02  #: relative deviation of the rate from the expected one
 LOST_WARN = 0.05  #: fraction of samples missing between first and last stamp

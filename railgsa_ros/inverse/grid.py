@@ -27,6 +27,8 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.band import (
     band_limits,
     bandpass_power,
@@ -37,7 +39,6 @@ from railgsa_ros.inverse.band import (
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams
@@ -217,17 +218,17 @@ class ChainageGrid:
 
 
 class GridStream:
-    """IMU and odometry in, the profile on the chainage grid out: an InputPolicy with the
+    """IMU and odometry in, the profile on the chainage grid out: an InputStage with the
     pre-band (``grid_config(config)``) and ``ChainageGrid.for_config(config, step_m)`` behind
     it, the pair ``railgsa invert --grid`` runs (through offline.Driver), as one object for a
-    node. Methods as InputPolicy's; each returns the grid points that are finished."""
+    node. Methods as InputStage's; each returns the grid points that are finished."""
 
     def __init__(self, config: InversionConfig, vehicle: VehicleParams | np.ndarray | None = None,
-                 options: PolicyOptions | None = None, step_m: float = DEFAULT_STEP_M,
+                 options: InputOptions | None = None, step_m: float = DEFAULT_STEP_M,
                  noise_variance: float | None = None) -> None:
         self.grid = ChainageGrid.for_config(config, step_m)
         self._band = (config.band, config.band_order, config.fir_tolerance)
-        self.policy = InputPolicy(grid_config(config), vehicle, options=options,
+        self.policy = InputStage(grid_config(config), vehicle, options=options,
                                   noise_variance=noise_variance)
 
     def odometry(self, stamps_ns: np.ndarray, speed_mps: np.ndarray) -> GridOutput:
@@ -244,7 +245,7 @@ class GridStream:
         return GridOutput.concat([self.grid.push(self.policy.flush()), self.grid.flush()])
 
     def rebuild(self, config: InversionConfig, vehicle: VehicleParams | np.ndarray | None = None,
-                options: PolicyOptions | None = None) -> GridOutput:
+                options: InputOptions | None = None) -> GridOutput:
         """A parameter change: the policy rebuilt with the new pre-band (its pending outputs
         reach the grid, the chainage continues); a new distance band ends the old grid first."""
         outs = [self.grid.push(self.policy.rebuild(grid_config(config), vehicle,

@@ -1,6 +1,7 @@
 """The streaming inversion pipeline shared by ``irregularity_node`` and ``railgsa invert``.
 
-Per sample: sanitise -> chainage (trapezoidal integral of speed over the stamps) -> vertical
+Per sample (sanitised by the input stage, ``railgsa_ros.input``, or by ``push``'s own
+sanitiser): chainage (trapezoidal integral of speed over the stamps) -> vertical
 acceleration minus gravity (optionally minus a running-mean bias) -> raised-cosine fade-in after
 each (re)start -> method -> band FIR with a fixed delay of D samples. The output for sample k is
 emitted when sample k + D has arrived and carries sample k's stamp and chainage.
@@ -31,6 +32,7 @@ import math
 import numpy as np
 
 from railgsa_ros.errors import ConfigError, InputError
+from railgsa_ros.input.sanitize import SMALL, SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.inverse.band import (
     band_edges_hz,
     bandpass_power,
@@ -63,7 +65,6 @@ from railgsa_ros.inverse.multirate import (
     rolloff,
 )
 from railgsa_ros.inverse.quality import Quality
-from railgsa_ros.inverse.sanitize import SMALL, SPEED_LIMIT_MPS, Clean, InputSanitizer
 from railgsa_ros.models import VehicleModel
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
@@ -190,7 +191,8 @@ class InversionPipeline:
     ``vehicle``: VehicleParams, theta (5,) or a bank theta (P, 5); ``noise_variance``: IMU
     accelerometer variance ((m/s^2)^2) for the Kalman method, else ``config.noise_std_mps2``^2;
     ``start_chainage_m``: chainage of the first sample (m; a rebuilt pipeline continues its
-    predecessor's); ``stuck_s``, ``backward_reset_s``: see :class:`InputSanitizer`;
+    predecessor's); ``stuck_s``, ``backward_reset_s``: the sanitiser of ``push`` (see
+    :class:`InputSanitizer`; an input stage sanitises and calls ``feed``);
     ``nominal``: the vehicle theta (5,) whose band response sets the quality window
     (``window_half_width``; default: the widest of the bank), so that a bank and the nominal
     pipeline grade their outputs alike.
@@ -244,10 +246,8 @@ class InversionPipeline:
         self._extra: list[np.ndarray] = []  # extra channel columns (C - 1, N) not yet fed
         self._last_extra = np.zeros(self.extra_channels)  # last finite value of each
         self.dt = 1.0 / cfg.rate_hz
-        self.sanitizer = InputSanitizer(cfg.rate_hz, cfg.gap_factor, cfg.gap_policy,
-                                        cfg.max_bridge_s, cfg.saturation_mps2,
-                                        cfg.saturation_margin_mps2, cfg.frame_id,
-                                        stuck_s=stuck_s, backward_reset_s=backward_reset_s)
+        self._limits = (stuck_s, backward_reset_s)
+        self._sanitizer: InputSanitizer | None = None  # push's, made at the first push
         self._counters: Counter[str] = Counter()
         self.stability: Stability | None = None
         self._stage: FeedbackInverse | KalmanInverse | None = None
@@ -291,14 +291,12 @@ class InversionPipeline:
     # ----------------------------------------------------------------- public interface
     @property
     def counters(self) -> dict[str, int]:
-        """Counts by reason: rejected samples (nan, wrong_frame, saturated, stuck, out_of_order,
-        duplicate), gap, reset, time_reset, bridged, accepted, emitted, redesign."""
-        return dict(self.sanitizer.counters + self._counters)
-
-    @property
-    def accepted(self) -> int:
-        """IMU samples the sanitiser accepted so far (``counters['accepted']``, cheaply)."""
-        return self.sanitizer.counters['accepted']
+        """Counts by reason: emitted, redesign, reset_<reason>; after ``push`` also its
+        sanitiser's: rejected samples (nan, wrong_frame, saturated, stuck, out_of_order,
+        duplicate), gap, reset, time_reset, bridged, accepted."""
+        if self._sanitizer is None:
+            return dict(+self._counters)
+        return dict(self._sanitizer.counters + self._counters)
 
     @property
     def chainage_m(self) -> float:
@@ -307,7 +305,7 @@ class InversionPipeline:
 
     def add_distance(self, metres: float) -> None:
         """Move the chainage on by ``metres`` before the next sample (a distance the speeds
-        pushed did not cover: ``InputPolicy`` across samples without a known speed)."""
+        fed did not cover: ``InputStage`` across samples without a known speed)."""
         if self._chain is None:
             self.start_chainage_m += metres
         else:
@@ -333,27 +331,34 @@ class InversionPipeline:
              speed_mps: np.ndarray | float | None = None,
              frame_ids: np.ndarray | None = None,
              quality: np.ndarray | None = None, rates: np.ndarray | None = None) -> Output:
-        """Feed samples: stamps (T,) int64 ns, upward specific force (T,) m/s^2 (+g at rest, see
-        ``vertical``), speed (T,) or scalar m/s (None: ``config.speed_mps``), frame ids (T,),
-        input quality (T,) :class:`Quality` codes (None: VALID) that the delay line carries to
-        each output (raised there for the warm-up, the tail and bridged input); ``rates``:
-        the data channels after the accelerometer (``extra_channels`` rows, (T,) for one: the
-        pitch rate in rad/s), required exactly when the pipeline was built with them."""
+        """Feed raw samples without an input stage (tests, scoring, calibration): stamps (T,)
+        int64 ns, upward specific force (T,) m/s^2 (+g at rest, see ``vertical``), speed (T,)
+        or scalar m/s (None: ``config.speed_mps``), frame ids (T,), input quality (T,)
+        :class:`Quality` codes (None: VALID), ``rates`` the data channels after the
+        accelerometer (see ``feed``); sanitised by the pipeline's own :class:`InputSanitizer`,
+        then ``feed``."""
         speed = self.config.speed_mps if speed_mps is None else speed_mps
-        extra = self._check_extra(rates, np.shape(acc_z)[0])
-        clean = self.sanitizer.process(stamps_ns, acc_z, speed, frame_ids)
+        if self._sanitizer is None:
+            self._sanitizer = InputSanitizer.for_config(self.config, *self._limits)
+        clean = self._sanitizer.process(stamps_ns, acc_z, speed, frame_ids)
+        return self.feed(clean, clean.carry(quality), rates, np.shape(acc_z)[0])
+
+    def feed(self, clean: Clean, quality: np.ndarray, rates: np.ndarray | None = None,
+             count: int | None = None) -> Output:
+        """Filter a sanitised batch ``clean`` (an input stage's ``InputSanitizer.process``)
+        with its input quality (N,) :class:`Quality` codes per clean sample, which the delay
+        line carries to each output (raised there for the warm-up, the tail and bridged
+        input); the filters restart where ``clean.reset_before`` says. ``rates``: the raw
+        batch's data channels after the accelerometer (``extra_channels`` rows of ``count``
+        samples, (T,) for one: the pitch rate in rad/s), required exactly when the pipeline
+        was built with them."""
+        if count is None:
+            count = 0 if rates is None else np.shape(rates)[-1]
+        extra = self._check_extra(rates, count)
         if extra is not None:
             self._extra.append(self._extra_columns(extra, clean))
-        if quality is None:
-            q_clean = np.zeros(clean.accel.size, np.uint8)
-        elif clean.index is None:  # every sample accepted in order
-            q_clean = np.array(quality, np.uint8)
-        else:
-            pos = clean.positions()
-            q_clean = np.where(pos >= 0, np.asarray(quality, np.uint8)[np.maximum(pos, 0)], 0
-                               ).astype(np.uint8)
         if clean.index is None and not clean.reset_before[:1].any():  # one piece, no restart
-            return self._public(self._run(clean, q_clean, slice(None)))
+            return self._public(self._run(clean, quality, slice(None)))
         cuts = np.flatnonzero(clean.reset_before)
         outs = []
         for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [clean.accel.size]]),
@@ -361,14 +366,15 @@ class InversionPipeline:
             if lo in cuts:
                 outs.append(self._end_segment())
             if hi > lo:
-                outs.append(self._run(clean, q_clean, slice(lo, hi)))
+                outs.append(self._run(clean, quality, slice(lo, hi)))
         return self._public(self._join(outs))
 
     def flush(self) -> Output:
         """End an offline stream: pad D samples (the last acceleration faded out over
         ``taper_s``, then zeros) and emit every pending sample; the next push starts afresh."""
         out = self._end_segment()
-        self.sanitizer.reset()
+        if self._sanitizer is not None:
+            self._sanitizer.reset()
         return self._public(out)
 
     def reset(self, reason: str = 'request') -> Output:

@@ -19,7 +19,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from railgsa_ros.inverse.sanitize import SMALL
+from railgsa_ros.input.sanitize import SMALL
 
 
 class Quality(IntEnum):

@@ -25,7 +25,7 @@ each. After ``idle_flush_s`` without input, ``on_idle()`` is called every ``idle
 ``convert`` / ``odometry`` decode such batches vectorised (:mod:`imu_conversion`; rclpy's
 deserialiser for other encodings), count and drop malformed messages; every input decision
 (axis, frame policy, speed, noise, quality) is the core's
-:class:`~railgsa_ros.inverse.policy.InputPolicy`. ``report`` is the 'imu input' diagnostic task.
+:class:`~railgsa_ros.input.stage.InputStage`. ``report`` is the 'imu input' diagnostic task.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from sensor_msgs.msg import Imu
 
 from railgsa_ros.bag.cdr import Fallback
 from railgsa_ros.bag.messages import flatten
-from railgsa_ros.inverse.sanitize import REASONS
+from railgsa_ros.input.sanitize import REASONS
 from railgsa_ros.nodes.diagnostics import OK, STALE, WARN, Report
 from railgsa_ros.nodes.imu_conversion import ImuBatch, imu_batch, odometry_speeds
 from railgsa_ros.nodes.qos import sensor_qos

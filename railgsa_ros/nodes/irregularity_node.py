@@ -3,7 +3,7 @@
 Subscribes ``imu/data`` (sensor_msgs/Imu) and optionally ``odom`` (nav_msgs/Odometry, speed =
 twist.twist.linear.x); publishes ``track/irregularity`` (geometry_msgs/PointStamped, stamp = the
 IMU sample's stamp, frame ``track``, x = chainage m, z = irregularity m, +z up) and
-``/diagnostics``. A thin adapter over :class:`railgsa_ros.inverse.policy.InputPolicy` (every
+``/diagnostics``. A thin adapter over :class:`railgsa_ros.input.stage.InputStage` (every
 input decision: axis, frame policy, speed with its timeout, noise, quality; the same object as
 ``railgsa invert``): ``point.y`` = the sample's quality code (0 VALID, 1 DEGRADED, 2 INVALID),
 ``point.z`` = NaN when INVALID. With ``publish_grid`` also ``track/irregularity_grid``: the
@@ -46,10 +46,11 @@ from rclpy.parameter import Parameter
 
 from railgsa_ros.bag.messages import POINT_STAMPED
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.grid import GridOutput, GridStream
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, LatencyWindow, Report, quality_values
 from railgsa_ros.nodes.imu_conversion import ImuBatch
 from railgsa_ros.nodes.lifecycle import run
@@ -73,25 +74,25 @@ NODE_NAME = 'irregularity_node'
 SPECS = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, *IRREGULARITY_SPECS)
 #: parameters whose change rebuilds the policy (old filters flushed, chainage continued)
 MODEL_PARAMS = frozenset((*(s.name for s in INVERSION_SPECS + VEHICLE_SPECS),
-                          *(f.name for f in fields(PolicyOptions))))
-Model = tuple[InversionConfig, VehicleParams, PolicyOptions]
+                          *(f.name for f in fields(InputOptions))))
+Model = tuple[InversionConfig, VehicleParams, InputOptions]
 
 
 def model_inputs(values: Mapping[str, Any]) -> Model:
     """Inversion config, vehicle and input options of parameter ``values`` (ConfigError with
     the reason if invalid)."""
     return (inversion_config(values), VehicleParams(**{n: values[n] for n in PARAM_NAMES}),
-            PolicyOptions.from_mapping(values))
+            InputOptions.from_mapping(values))
 
 
-def build_model(values: Mapping[str, Any], noise_variance: float | None = None) -> InputPolicy:
+def build_model(values: Mapping[str, Any], noise_variance: float | None = None) -> InputStage:
     """The input policy for parameter ``values``; ConfigError (with the reason) if invalid.
 
     ``noise_variance``: a fixed accelerometer variance (m/s^2)^2 (the filters are built at
     once, which checks e.g. the feedback stability); None: the policy's rule from the data.
     """
     config, vehicle, options = model_inputs(values)
-    return InputPolicy(config, vehicle, options=options, noise_variance=noise_variance)
+    return InputStage(config, vehicle, options=options, noise_variance=noise_variance)
 
 
 def build_grid(values: Mapping[str, Any]) -> GridStream:
@@ -109,7 +110,7 @@ class IrregularityNode(StreamNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.policy: InputPolicy | None = None
+        self.policy: InputStage | None = None
         self._candidate: Model | None = None
         self._next_model: Model | None = None
         self._latency = LatencyWindow()
@@ -207,7 +208,7 @@ class IrregularityNode(StreamNode):
 
     # ------------------------------------------------------------------ data path
     @property
-    def input_policy(self) -> InputPolicy | None:
+    def input_policy(self) -> InputStage | None:
         return self.policy
 
     def core_counters(self) -> Mapping[str, int]:

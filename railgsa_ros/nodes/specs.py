@@ -18,9 +18,9 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
 
+from railgsa_ros.input.options import REORDER_WINDOW_S
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.grid import DEFAULT_STEP_M
-from railgsa_ros.inverse.policy import REORDER_WINDOW_S
 from railgsa_ros.location import DIRECTIONS
 from railgsa_ros.nodes.params import ParamSpec
 from railgsa_ros.qos import MIN_SENSOR_DEPTH, OUTPUT_DEPTH, RELIABILITIES, SENSOR_DEPTH

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from railgsa_ros.bag.cdr import StampedLayout
-from railgsa_ros.inverse.policy import InputPolicy
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.nodes.diagnostics import (
     Deltas,
     DiagnosticsPublisher,
@@ -68,7 +68,7 @@ class StreamNode(ManagedNode):
 
     # ------------------------------------------------------------------ for subclasses
     @property
-    def input_policy(self) -> InputPolicy | None:
+    def input_policy(self) -> InputStage | None:
         """The core's input policy (None when not configured)."""
         raise NotImplementedError
 

@@ -39,7 +39,8 @@ from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 
 from railgsa_ros.bag.messages import VECTOR3_STAMPED
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, Report, make_status, quality_values
 from railgsa_ros.nodes.imu_conversion import NS_PER_S, ImuBatch
 from railgsa_ros.nodes.lifecycle import run
@@ -133,7 +134,7 @@ class UncertaintyNode(StreamNode):
 
     # ------------------------------------------------------------------ data path
     @property
-    def input_policy(self) -> InputPolicy | None:
+    def input_policy(self) -> InputStage | None:
         return None if self.stream is None else self.stream.policy
 
     def core_counters(self) -> Mapping[str, int]:
@@ -174,7 +175,7 @@ class UncertaintyNode(StreamNode):
     def _new_stream(self) -> UncertaintyStream:
         """A stream (its input policy with the bank) for the configuration."""
         return UncertaintyStream(self.config, self.vehicle, self.dists,
-                                 options=PolicyOptions.from_mapping(self._values))
+                                 options=InputOptions.from_mapping(self._values))
 
     def _rebuild(self) -> None:
         """After a failure: the stream's filters rebuilt, continuing the chainage (the pending

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railgsa_ros.inverse.sanitize import REASONS
+from railgsa_ros.input.sanitize import REASONS
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,8 @@ import numpy as np
 from railgsa_ros import samples
 from railgsa_ros.bag import ImuStream
 from railgsa_ros.errors import InputError
-from railgsa_ros.inverse.policy import Finding, PolicyOptions
+from railgsa_ros.input.findings import Finding
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Location, Reference
 from railgsa_ros.offline import (
@@ -197,7 +198,7 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
                section_m: float = SECTION_M, chunk: int | None = REVIEW_CHUNK,
                progress: Callable[[int], None] | None = None, *,
                speed_mps: float | None = None,
-               options: PolicyOptions | None = None) -> tuple[ReviewRun, UncertaintyConfig]:
+               options: InputOptions | None = None) -> tuple[ReviewRun, UncertaintyConfig]:
     """Stream the bag through the driver (nominal pipeline, and the bank unless ``dists`` is
     None) and summarise it; returns the run and the configuration in effect (the IMU rate from
     the first chunk when ``rate_from_bag``). With GNSS in the bag, a first pass over the
@@ -212,7 +213,7 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
     if rate_from_bag:
         config = config.with_(inversion=inv.with_(rate_hz=nominal_rate_hz(first, source)))
         inv = config.inversion
-    options = options if options is not None else PolicyOptions()
+    options = options if options is not None else InputOptions()
     if speed_mps is not None:
         config = config.with_(inversion=inv.with_(speed_mps=float(speed_mps)))
         inv = config.inversion

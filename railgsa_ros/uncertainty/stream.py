@@ -5,7 +5,7 @@ vectorised bank (theta (P, 5)). Every emitted sample k carries the bank outputs 
 coefficients are a fixed linear map of them (``Design.projector``), the mean is exact from the
 coefficients (c_0), and the lower/upper quantiles come from the surrogate on a fixed scrambled
 Sobol' germ sample (``Design.germ_basis``), per sample. The bank is fed by an
-:class:`~railgsa_ros.inverse.policy.InputPolicy` with the nominal vehicle: its decisions (speed,
+:class:`~railgsa_ros.input.stage.InputStage` with the nominal vehicle: its decisions (speed,
 noise, sanitiser, quality) are a function of the input data and the inversion config alone, so
 they equal those of irregularity_node's policy and the band's stamps and qualities are the
 ``track/irregularity`` ones one to one (only the emission lags by the bank's longer FIR delay).
@@ -24,8 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
-from railgsa_ros.inverse.policy import InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.samples import join, pieces
 from railgsa_ros.uncertainty.config import UncertaintyConfig
@@ -176,24 +177,31 @@ class UncertaintyStream:
     the stamps to match); ``vehicle``: nominal parameters (Table 1 by default); ``dists``:
     uncertain parameter name -> Distribution (Table 3 around ``vehicle`` by default);
     ``noise_variance``: a fixed accelerometer variance, (m/s^2)^2 (None: the policy's rule);
-    ``options``: the policy's PolicyOptions; ``quantiles`` False: the bands hold the mean
-    only (lower/upper NaN: the review computes the quantiles of the samples it keeps).
+    ``options``: the policy's InputOptions; ``quantiles`` False: the bands hold the mean
+    only (lower/upper NaN: the review computes the quantiles of the samples it keeps);
+    ``stage``: an input stage of the same stream to share (offline: the nominal one, which
+    then feeds the bank pipeline; ``update`` and ``close`` take its ``bank_outputs``), None:
+    a stage of its own (``odometry``, ``imu``, ``flush``).
     """
 
     def __init__(self, config: UncertaintyConfig | None = None,
                  vehicle: VehicleParams | None = None,
                  dists: Mapping[str, Distribution] | None = None,
                  noise_variance: float | None = None,
-                 options: PolicyOptions | None = None, *, defer: bool = False,
-                 quantiles: bool = True) -> None:
+                 options: InputOptions | None = None, *, defer: bool = False,
+                 quantiles: bool = True, stage: InputStage | None = None) -> None:
         self.config = config if config is not None else UncertaintyConfig()
         vehicle = vehicle if vehicle is not None else VehicleParams()
         self.design = build_design(self.config, vehicle,
                                    dists if dists is not None else table3(vehicle))
-        self.policy = InputPolicy(self.config.inversion, vehicle, bank=self.design.theta,
-                                  options=options, noise_variance=noise_variance)
+        if stage is None:
+            stage = InputStage(self.config.inversion, vehicle, bank=self.design.theta,
+                               options=options, noise_variance=noise_variance)
+        else:
+            stage.feed_bank(self.design.theta)
+        self.policy = stage
         # the sensor terms use the policy's noise floor (its noise decision from the data)
-        self.terms = SensorTerms(self.config, self.policy.noise_std_m)
+        self.terms = SensorTerms(self.config, self.policy.noise.sigma_m)
         self.windows = WindowAnalyzer(self.config, self.design, defer=defer)
         self._quantiles = ((self.config.lower_quantile, self.config.upper_quantile)
                            if quantiles else None)
@@ -214,13 +222,13 @@ class UncertaintyStream:
         return self.pipeline.delay_samples
 
     def odometry(self, stamps_ns: np.ndarray, speed_mps: np.ndarray) -> Update:
-        """Odometry samples, as ``InputPolicy.odometry``."""
+        """Odometry samples, as ``InputStage.odometry``."""
         return self.update(self.policy.odometry(stamps_ns, speed_mps))
 
     def imu(self, stamps_ns: np.ndarray, accel: np.ndarray,
             frame_ids: np.ndarray | None = None,
             covariance: np.ndarray | None = None) -> Update:
-        """IMU samples, as ``InputPolicy.imu``: stamps (T,) ns, accel (T, 3) m/s^2, frame ids
+        """IMU samples, as ``InputStage.imu``: stamps (T,) ns, accel (T, 3) m/s^2, frame ids
         (T,), REP 145 covariance (T, 9)."""
         return self.update(self.policy.imu(stamps_ns, accel, frame_ids, covariance))
 
@@ -236,7 +244,11 @@ class UncertaintyStream:
 
     def flush(self) -> Update:
         """End of a stream (or a restart): emit every pending sample, close the window."""
-        update = self.update(self.policy.flush())
+        return self.close(self.policy.flush())
+
+    def close(self, out: Output) -> Update:
+        """Band and windows of a stream's last outputs ``out``; the open window closed."""
+        update = self.update(out)
         return Update(update.band, update.windows + self.windows.close(), update.bank_u_m,
                       update.sensor_std_m)
 
@@ -282,7 +294,7 @@ def offline_bands(stamps_ns: np.ndarray, accel: np.ndarray,
                   vehicle: VehicleParams | None = None,
                   dists: Mapping[str, Distribution] | None = None,
                   noise_variance: float | None = None,
-                  options: PolicyOptions | None = None) -> Band:
+                  options: InputOptions | None = None) -> Band:
     """Bands of a whole stream in memory (tests, calibration ensembles): the node's streaming
     code, odometry (stamps, speeds) first, then the IMU in ``samples.CHUNK`` pieces, flushed;
     stamps equal the nominal policy's stamps for the same input."""

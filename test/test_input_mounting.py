@@ -14,10 +14,11 @@ from scipy.spatial.transform import Rotation
 from railgsa_ros.bag import write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.imu import imu_spec
-from railgsa_ros.inverse import mounting
+from railgsa_ros.input import mounting
+from railgsa_ros.input.findings import OK, WARN
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import OK, WARN, InputPolicy
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.mount_sim import horizontal_motion, mounted
 from railgsa_ros.samples import pieces
@@ -40,9 +41,9 @@ def body():
     return run, accel
 
 
-def invert(run, accel, **config) -> tuple[Output, InputPolicy]:
+def invert(run, accel, **config) -> tuple[Output, InputStage]:
     """The run through the policy: odometry first, then the IMU in chunks, then flush."""
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz, **config))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz, **config))
     outs = [policy.odometry(run.stamps_ns[::20], run.speed_mps[::20])]
     for sl in pieces(run.stamps_ns.size, 20000):
         outs.append(policy.imu(run.stamps_ns[sl], accel[sl]))

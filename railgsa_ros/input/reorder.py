@@ -23,7 +23,8 @@ import itertools
 
 import numpy as np
 
-from railgsa_ros.inverse.sanitize import SMALL
+from railgsa_ros.input.findings import OK, WARN
+from railgsa_ros.input.sanitize import SMALL
 
 #: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) str or object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
@@ -56,6 +57,7 @@ class Reorder:
 
     def configure(self, window_s: float, backward_reset_s: float, cap: int) -> None:
         """New window (s), backward jump (s) and cap (samples); held samples are kept."""
+        self.window_s = window_s
         self.window_ns = round(window_s * 1e9)
         self.backward_ns = round(backward_reset_s * 1e9)
         self.cap = max(int(cap), 1)
@@ -64,6 +66,21 @@ class Reorder:
     def held(self) -> int:
         """Samples waiting for their release."""
         return int(self._held_idx.size)
+
+    def verdict(self) -> tuple[int, str]:
+        """The 'order' finding's level and message: IMU stamps out of arrival order,
+        re-ordered or late (``reorder_window_s``)."""
+        counts, largest, window = self.counters, self.largest_ns, self.window_s
+        if counts['late']:
+            return WARN, (
+                f'{counts["late"]} IMU samples arrived more than reorder_window_s '
+                f'({window * 1e3:g} ms) after a newer stamp (by up to '
+                f'{largest["late"] / 1e6:.4g} ms): not re-ordered, rejected as out_of_order; '
+                'check the driver clock, or raise reorder_window_s above that')
+        return OK, (
+            f'{counts["reordered"]} IMU samples re-ordered by header stamp (by up to '
+            f'{largest["reordered"] / 1e6:.4g} ms, within reorder_window_s '
+            f'{window * 1e3:g} ms)')
 
     def push(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
              cov: np.ndarray | None) -> Columns:

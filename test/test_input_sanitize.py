@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from railgsa_ros.inverse.sanitize import InputSanitizer, frame_mask
+from railgsa_ros.input.sanitize import InputSanitizer, frame_mask
 
 MS = 1_000_000
 

@@ -7,7 +7,7 @@ import heapq
 import numpy as np
 import pytest
 
-from railgsa_ros.inverse.reorder import Reorder
+from railgsa_ros.input.reorder import Reorder
 
 MS = 1_000_000
 

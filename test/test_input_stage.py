@@ -1,4 +1,4 @@
-"""InputPolicy: live-style feeding equals offline feeding at variable speed with stops, quality
+"""InputStage: live-style feeding equals offline feeding at variable speed with stops, quality
 states against the simulation's truth, and the plausibility findings."""
 
 from __future__ import annotations
@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from railgsa_ros.imu import imu_spec
+from railgsa_ros.input.findings import ERROR, OK, WARN
+from railgsa_ros.input.options import InputOptions
+from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
-from railgsa_ros.inverse.policy import ERROR, OK, WARN, InputPolicy, PolicyOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.samples import pieces
@@ -35,7 +37,7 @@ def stop_and_go():
     return run_scenario('german-low', profile, 80.0, None, 'adxl355', seed=3)
 
 
-def offline(run, policy: InputPolicy, odom=True) -> Output:
+def offline(run, policy: InputStage, odom=True) -> Output:
     """Offline feeding: all odometry first, then the IMU in chunks of 65536, then flush."""
     outs = []
     if odom:
@@ -47,7 +49,7 @@ def offline(run, policy: InputPolicy, odom=True) -> Output:
     return Output.concat(outs)
 
 
-def live(run, policy: InputPolicy, seed: int, max_lag_s: float = 0.3) -> Output:
+def live(run, policy: InputStage, seed: int, max_lag_s: float = 0.3) -> Output:
     """Live feeding: IMU batches of 1..500 samples as they arrive (at their last stamp),
     odometry messages one at a time arriving with a random lag of 0..max_lag_s."""
     rng = np.random.default_rng(seed)
@@ -80,9 +82,9 @@ def assert_identical(a: Output, b: Output) -> None:
 def test_live_feeding_equals_offline_bit_for_bit_at_variable_speed_with_stops(stop_and_go):
     run = stop_and_go
     cfg = InversionConfig(rate_hz=run.rate_hz)
-    ref = offline(run, InputPolicy(cfg))
+    ref = offline(run, InputStage(cfg))
     for seed in (1, 2):
-        assert_identical(live(run, InputPolicy(cfg), seed), ref)
+        assert_identical(live(run, InputStage(cfg), seed), ref)
     # every accepted IMU sample has exactly one output, in order
     np.testing.assert_array_equal(ref.stamps_ns, run.stamps_ns)
     # and the speed of each output is the odometry held at its stamp (independent lookup)
@@ -93,16 +95,16 @@ def test_live_feeding_equals_offline_bit_for_bit_at_variable_speed_with_stops(st
 
 def test_standstill_and_low_speed_are_invalid_nan_and_cruise_is_valid(stop_and_go):
     run = stop_and_go
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     out = offline(run, policy)
     q, v = out.quality, out.speed_mps
-    assert np.all(q[v < policy.v_invalid] == Quality.INVALID)
+    assert np.all(q[v < policy.noise.v_invalid] == Quality.INVALID)
     assert np.all(np.isnan(out.u_m[q == Quality.INVALID]))
     assert np.all(np.isfinite(out.u_m[q != Quality.INVALID]))
     standing = run.speed_mps == 0
     assert standing.sum() > 5000 and np.all(q[standing] == Quality.INVALID)
     # below min_design_speed_mps the band design is held: at best DEGRADED
-    assert np.all(q[(v >= policy.v_invalid) & (v < 10.0)] >= Quality.DEGRADED)
+    assert np.all(q[(v >= policy.noise.v_invalid) & (v < 10.0)] >= Quality.DEGRADED)
     # the cruise at 25 m/s is VALID; accelerating and braking at ~1.5 m/s^2 is DEGRADED
     # (the speed across the band window is off its design by more than 5 %)
     cruise = np.abs(v - 25.0) < 0.01
@@ -116,15 +118,15 @@ def test_standstill_and_low_speed_are_invalid_nan_and_cruise_is_valid(stop_and_g
 
 def test_no_odometry_means_unknown_speed_invalid_and_a_finding():
     run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=1)
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     out = offline(run, policy, odom=False)
     assert len(out) == run.stamps_ns.size
     assert np.all(out.quality == Quality.INVALID) and np.all(np.isnan(out.u_m))
     assert policy.counters['speed_unknown'] == run.stamps_ns.size
     assert policy.status.level == WARN and 'odom' in policy.status.message
     # the fallback speed only when asked for
-    fixed = InputPolicy(InversionConfig(rate_hz=run.rate_hz, speed_mps=20.0),
-                        options=PolicyOptions(use_odom=False))
+    fixed = InputStage(InversionConfig(rate_hz=run.rate_hz, speed_mps=20.0),
+                        options=InputOptions(use_odom=False))
     out = offline(run, fixed, odom=False)
     assert np.sum(out.quality == Quality.VALID) > 0
 
@@ -135,7 +137,7 @@ def test_nan_odometry_keeps_every_imu_sample():
                        imu_spec('adxl355', dropout_fraction=0.0), seed=2)
     speed = run.speed_mps.copy()
     speed[::ODOM_EVERY][::3] = np.nan  # a third of the odometry messages are NaN
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     outs = [policy.odometry(run.stamps_ns[::ODOM_EVERY], speed[::ODOM_EVERY])]
     outs.append(policy.imu(run.stamps_ns, run.accel, None, _covariance(run)))
     outs.append(policy.flush())
@@ -149,7 +151,7 @@ def test_nan_odometry_keeps_every_imu_sample():
 def test_negative_speed_is_reverse_running_with_decreasing_chainage():
     run = run_scenario('german-low', 20.0, 20.0, None,
                        imu_spec('adxl355', dropout_fraction=0.0), seed=2)
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     policy.odometry(run.stamps_ns[::ODOM_EVERY], -run.speed_mps[::ODOM_EVERY])
     out = Output.concat([policy.imu(run.stamps_ns, run.accel, None, _covariance(run)),
                          policy.flush()])
@@ -163,7 +165,7 @@ def test_gravity_on_minus_y_is_a_finding_naming_the_axis_and_invalid_outputs():
     run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=4)
     accel = np.zeros_like(run.accel)
     accel[:, 0], accel[:, 1], accel[:, 2] = run.accel[:, 0], -run.accel[:, 2], run.accel[:, 1]
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
     out = Output.concat([policy.imu(run.stamps_ns, accel, None, _covariance(run)),
                          policy.flush()])
@@ -171,7 +173,7 @@ def test_gravity_on_minus_y_is_a_finding_naming_the_axis_and_invalid_outputs():
     finding = {f.key: f for f in policy.findings}['gravity']
     assert finding.level == ERROR and "accel_axis to '-y'" in finding.message
     # configured right, the same data is fine
-    fixed = InputPolicy(InversionConfig(rate_hz=run.rate_hz, accel_axis='-y'))
+    fixed = InputStage(InversionConfig(rate_hz=run.rate_hz, accel_axis='-y'))
     fixed.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
     out = Output.concat([fixed.imu(run.stamps_ns, accel, None, _covariance(run)),
                          fixed.flush()])
@@ -181,7 +183,7 @@ def test_gravity_on_minus_y_is_a_finding_naming_the_axis_and_invalid_outputs():
 
 def test_rate_hz_disagreeing_with_the_data_is_an_error_finding_and_invalid():
     run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=5)
-    policy = InputPolicy(InversionConfig(rate_hz=800.0))
+    policy = InputStage(InversionConfig(rate_hz=800.0))
     policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
     out = Output.concat([policy.imu(run.stamps_ns, run.accel, None, _covariance(run)),
                          policy.flush()])
@@ -194,14 +196,14 @@ def test_rate_hz_disagreeing_with_the_data_is_an_error_finding_and_invalid():
 def test_every_sample_rejected_for_its_frame_is_status_error():
     run = run_scenario('german-low', 20.0, 3.0, None, 'adxl355', seed=6)
     frames = np.full(run.stamps_ns.size, 'bad_frame')
-    strict = InputPolicy(InversionConfig(rate_hz=run.rate_hz),
-                         options=PolicyOptions(wrong_frame_policy='reject'))
+    strict = InputStage(InversionConfig(rate_hz=run.rate_hz),
+                         options=InputOptions(wrong_frame_policy='reject'))
     strict.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
     out = Output.concat([strict.imu(run.stamps_ns, run.accel, frames), strict.flush()])
     assert len(out) == 0
     assert strict.status.level == ERROR and 'wrong_frame' in strict.status.message
     # the default accepts a driver's own frame with a warning
-    lenient = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    lenient = InputStage(InversionConfig(rate_hz=run.rate_hz))
     lenient.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
     out = Output.concat([lenient.imu(run.stamps_ns, run.accel, frames), lenient.flush()])
     assert len(out) == run.stamps_ns.size
@@ -218,7 +220,7 @@ def test_warm_up_after_a_dropout_reset_is_invalid_and_the_valid_rest_is_accurate
     cfg = InversionConfig(rate_hz=run.rate_hz, gap_policy='reset')
 
     def invert(mask):
-        policy = InputPolicy(cfg)
+        policy = InputStage(cfg)
         policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
         out = Output.concat([policy.imu(run.stamps_ns[mask], run.accel[mask], None,
                                         _covariance(run, int(mask.sum()))), policy.flush()])
@@ -243,7 +245,7 @@ def test_bridged_stretch_degrades_its_window():
     run = run_scenario('german-low', 20.0, 40.0, None, NO_DROPOUTS, seed=8)
     keep = np.ones(run.stamps_ns.size, bool)
     keep[20000:20100] = False  # 0.1 s: bridged with the default policy
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
     out = Output.concat([policy.imu(run.stamps_ns[keep], run.accel[keep], None,
                                     _covariance(run, int(keep.sum()))), policy.flush()])
@@ -257,7 +259,7 @@ def test_bridged_stretch_degrades_its_window():
     assert far.sum() > 1000 and np.all(out.quality[far] == Quality.VALID)
 
 
-def _noise_only(policy: InputPolicy, rate_hz: float, sigma: float, seconds: float) -> Output:
+def _noise_only(policy: InputStage, rate_hz: float, sigma: float, seconds: float) -> Output:
     """Gravity plus white noise of std ``sigma`` on z, at a fixed speed: the reconstruction is
     pure propagated sensor noise."""
     n = int(seconds * rate_hz)
@@ -276,10 +278,10 @@ def test_low_speed_threshold_matches_a_noise_only_monte_carlo():
     def policy(speed):
         cfg = InversionConfig(rate_hz=rate, speed_mps=speed, min_design_speed_mps=2.0,
                               max_speed_mps=10.0, noise_limit_m=limit)
-        return InputPolicy(cfg, options=PolicyOptions(use_odom=False, stuck_s=0.0),
+        return InputStage(cfg, options=InputOptions(use_odom=False, stuck_s=0.0),
                            noise_variance=sigma ** 2)
 
-    v_invalid = policy(5.0).v_invalid
+    v_invalid = policy(5.0).noise.v_invalid
     assert 2.0 < v_invalid < 3.0  # where sigma_u(v) = 1 mm for this sensor
     for speed in (1.1 * v_invalid, 3.0, 5.0):
         p = policy(speed)
@@ -287,7 +289,7 @@ def test_low_speed_threshold_matches_a_noise_only_monte_carlo():
         kept = out.quality != Quality.INVALID
         assert kept.sum() > 800 * rate
         measured = np.std(out.u_m[kept])
-        predicted = float(p.noise_std_m(np.array([speed]))[0])
+        predicted = float(p.noise.sigma_m(np.array([speed]))[0])
         # 900 s of noise in a band 0.1-1.7 Hz wide: about 500 independent values, 3 % error
         assert measured == pytest.approx(predicted, rel=0.08), speed
     # at 1.1 v_invalid the measured noise is just below the limit; below v_invalid: INVALID
@@ -302,7 +304,7 @@ def test_band_follows_the_policy_at_variable_speed(stop_and_go):
 
     run = stop_and_go
     cfg = InversionConfig(rate_hz=run.rate_hz)
-    ref = offline(run, InputPolicy(cfg))
+    ref = offline(run, InputStage(cfg))
     band = offline_bands(run.stamps_ns, run.accel,
                          (run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY]),
                          covariance=_covariance(run),
@@ -327,7 +329,7 @@ def test_noise_is_the_median_of_the_first_reported_variances_skipping_absent_and
     variance over the first NOISE_SAMPLES samples; REP 145 covariance[0] == -1 (acceleration
     absent: the sample is rejected as nan) and all-zero covariances (unknown) are skipped;
     later samples do not count; with none reported, noise_std_mps2^2."""
-    from railgsa_ros.inverse.policy import NOISE_SAMPLES
+    from railgsa_ros.input.noise import NOISE_SAMPLES
 
     run = run_scenario('german-low', 20.0, 1.0, None, 'adxl355', seed=6)
     n = 300
@@ -346,9 +348,9 @@ def test_noise_is_the_median_of_the_first_reported_variances_skipping_absent_and
     expected = sorted(known)[len(known) // 2] if len(known) % 2 else \
         (sorted(known)[len(known) // 2 - 1] + sorted(known)[len(known) // 2]) / 2
     assert 0 < len(known) < NOISE_SAMPLES and expected != np.median(cov[:, col])
-    options = PolicyOptions(use_odom=False)
+    options = InputOptions(use_odom=False)
     cfg = InversionConfig(rate_hz=run.rate_hz, accel_axis=axis, speed_mps=20.0)
-    policy = InputPolicy(cfg, options=options)
+    policy = InputStage(cfg, options=options)
     for lo in range(0, n, 37):  # batching does not matter
         policy.imu(stamps[lo:lo + 37], accel[lo:lo + 37], None, cov[lo:lo + 37])
     assert policy.noise_variance == pytest.approx(expected, rel=1e-12)
@@ -359,7 +361,7 @@ def test_noise_is_the_median_of_the_first_reported_variances_skipping_absent_and
     silent = cov.copy()
     silent[head] = 0.0
     silent[head][kind[head] == 'absent', 0] = -1.0
-    fallback = InputPolicy(cfg, options=options)
+    fallback = InputStage(cfg, options=options)
     fallback.imu(stamps, accel, None, silent)
     assert fallback.noise_variance == pytest.approx(cfg.noise_std_mps2 ** 2, rel=1e-12)
     assert 'noise_std_mps2' in fallback.noise_source
@@ -374,7 +376,7 @@ def test_samples_lost_between_close_stamps_are_counted_and_degrade_not_valid():
     keep = np.arange(run.stamps_ns.size) % 10 != 5
     results = {}
     for name, mask in (('lossy', keep), ('clean', np.ones_like(keep))):
-        policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+        policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
         policy.odometry(run.stamps_ns[::ODOM_EVERY], run.speed_mps[::ODOM_EVERY])
         out = Output.concat([policy.imu(run.stamps_ns[mask], run.accel[mask], None,
                                         _covariance(run)[mask]), policy.flush()])
@@ -405,7 +407,7 @@ def test_jittered_stamps_with_lost_samples_are_counted_not_another_rate(rate_hz,
     keep = k % 50 != 25 if loss == 'every 50th' else k % 500 >= 5
     stamps = 10**18 + np.rint(k / rate_hz * 1e9 + rng.normal(0, 0.22e6, n)).astype(np.int64)
     accel = 0.02 * rng.standard_normal((n, 3)) + [0.0, 0.0, g]
-    policy = InputPolicy(InversionConfig(rate_hz=1000.0))
+    policy = InputStage(InversionConfig(rate_hz=1000.0))
     odom = np.arange(stamps[0], stamps[-1] + 10**9, 20 * 10**6)
     policy.odometry(odom, np.full(odom.size, 20.0))
     out = Output.concat([policy.imu(stamps[keep], accel[keep], None, None), policy.flush()])
@@ -427,7 +429,7 @@ def test_jittered_stamps_with_lost_samples_are_counted_not_another_rate(rate_hz,
         assert counters.get('lost', 0) == 0 and counters['gap'] == 5 and finding.level == OK
 
 
-def _valid_error(run, policy: InputPolicy) -> tuple[np.ndarray, Output]:
+def _valid_error(run, policy: InputStage) -> tuple[np.ndarray, Output]:
     """Error (m) of the VALID outputs against the truth band-passed on distance at their true
     chainage (100 m left out at each end), and the output."""
     out = offline(run, policy)
@@ -449,10 +451,10 @@ def test_valid_outputs_under_braking_are_as_accurate_as_at_constant_speed(accel)
     errors published as VALID at 2 m/s^2)."""
     prof = parse_speed_profile(f'cruise:28:8s,brake:28-14:{14 / accel:.4g}s,cruise:14:8s')
     run = run_scenario('german-low', prof, prof.duration_s, None, NO_DROPOUTS, seed=2)
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     err, out = _valid_error(run, policy)
     steady = run_scenario('german-low', 21.0, prof.duration_s, None, NO_DROPOUTS, seed=2)
-    ref_policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    ref_policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     ref, _ = _valid_error(steady, ref_policy)
     assert err.size > 2000 and ref.size > 10000
     rms, ref_rms = np.sqrt(np.mean(err ** 2)), np.sqrt(np.mean(ref ** 2))
@@ -468,13 +470,13 @@ def test_valid_outputs_under_braking_are_as_accurate_as_at_constant_speed(accel)
     assert 'acceleration' not in {f.key for f in ref_policy.findings}
 
 
-def _jittered(jitter_s: float) -> tuple[Output, InputPolicy, np.ndarray]:
+def _jittered(jitter_s: float) -> tuple[Output, InputStage, np.ndarray]:
     """20 m/s for 20 s with host-stamp jitter of std ``jitter_s``: (output, policy, error of
     the VALID outputs against the truth on distance)."""
     run = run_scenario('german-low', 20.0, 20.0, None,
                        imu_spec('adxl355', dropout_fraction=0.0, stamp_jitter_s=jitter_s),
                        seed=10)  # the median step made 1536 outputs INVALID on this one
-    policy = InputPolicy(InversionConfig(rate_hz=run.rate_hz))
+    policy = InputStage(InversionConfig(rate_hz=run.rate_hz))
     err, out = _valid_error(run, policy)
     return out, policy, err
 
@@ -524,8 +526,8 @@ def test_one_saturated_sample_costs_its_own_output_only(chunk, spike):
     run = run_scenario('german-low', 20.0, 10.0, None, 'adxl355', seed=5)
     cov = _covariance(run)
 
-    def feed(accel: np.ndarray) -> tuple[Output, InputPolicy]:
-        policy = InputPolicy(InversionConfig(speed_mps=20.0), options=PolicyOptions(
+    def feed(accel: np.ndarray) -> tuple[Output, InputStage]:
+        policy = InputStage(InversionConfig(speed_mps=20.0), options=InputOptions(
             use_odom=False))
         outs = [policy.imu(run.stamps_ns[i:i + chunk], accel[i:i + chunk], None,
                            cov[i:i + chunk]) for i in range(0, run.stamps_ns.size, chunk)]
@@ -553,7 +555,7 @@ def test_a_time_reset_keeps_the_speed_known_whatever_the_jump():
     imu_t[cut:] -= back
     odom_i = np.arange(0, imu_t.size, ODOM_EVERY)
     odom_t = imu_t[odom_i]
-    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    policy = InputStage(InversionConfig(), options=InputOptions())
     cov = _covariance(run)
     outs = []
     for i in range(0, imu_t.size, 2):  # arrival order; odometry arrives with its IMU sample
@@ -581,7 +583,7 @@ def test_an_odometry_outage_is_flagged_and_its_distance_recovered(chunk):
     outage = (run.stamps_ns[odom_i] > run.stamps_ns[6_000]) & (
         run.stamps_ns[odom_i] < run.stamps_ns[9_000])
     odom_i = odom_i[~outage]
-    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    policy = InputStage(InversionConfig(), options=InputOptions())
     cov = _covariance(run)
     outs, k = [], 0
     for lo in range(0, run.stamps_ns.size, chunk):  # odometry up to the chunk's end first
@@ -609,7 +611,7 @@ def test_zero_stamps_are_malformed_as_in_the_nodes_intake():
     stamps[[5000, 12_000]] = 0
     odom_t = run.stamps_ns[::ODOM_EVERY].copy()
     odom_t[300] = 0
-    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    policy = InputStage(InversionConfig(), options=InputOptions())
     out = Output.concat([policy.odometry(odom_t, run.speed_mps[::ODOM_EVERY]),
                          *(policy.imu(stamps[i:i + 500], run.accel[i:i + 500])
                            for i in range(0, stamps.size, 500)), policy.flush()])
@@ -626,15 +628,15 @@ def test_an_option_change_the_filters_do_not_see_keeps_them_running():
     run = run_scenario('german-low', 20.0, 20.0, None, 'adxl355', seed=9)
     cov = _covariance(run)
 
-    def feed(change: bool) -> tuple[Output, InputPolicy]:
-        policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    def feed(change: bool) -> tuple[Output, InputStage]:
+        policy = InputStage(InversionConfig(), options=InputOptions())
         outs = []
         for i in range(0, run.stamps_ns.size, 500):
             if i % ODOM_EVERY == 0:
                 sl = slice(i, i + 500, ODOM_EVERY)
                 outs.append(policy.odometry(run.stamps_ns[sl], run.speed_mps[sl]))
             if change and i == 10_000:
-                outs.append(policy.rebuild(InversionConfig(speed_mps=33.0), options=PolicyOptions(
+                outs.append(policy.rebuild(InversionConfig(speed_mps=33.0), options=InputOptions(
                     stuck_s=0.6, reorder_window_s=0.08)))
             outs.append(policy.imu(run.stamps_ns[i:i + 500], run.accel[i:i + 500], None,
                                    cov[i:i + 500]))
@@ -654,7 +656,7 @@ def test_an_odometry_sign_glitch_is_implausible_not_reverse_running():
     odom_t, odom_v = run.stamps_ns[::ODOM_EVERY], np.array(run.speed_mps[::ODOM_EVERY])
     glitch = (odom_t >= run.stamps_ns[6_000]) & (odom_t < run.stamps_ns[6_900])
     odom_v[glitch] *= -1.0
-    policy = InputPolicy(InversionConfig(), options=PolicyOptions())
+    policy = InputStage(InversionConfig(), options=InputOptions())
     out = Output.concat([policy.odometry(odom_t, odom_v),
                          *(policy.imu(run.stamps_ns[i:i + 500], run.accel[i:i + 500])
                            for i in range(0, run.stamps_ns.size, 500)), policy.flush()])

@@ -21,6 +21,8 @@ import itertools
 
 import numpy as np
 
+from railgsa_ros.inverse.config import InversionConfig
+
 #: fastest plausible rail vehicle (m/s, 720 km/h): odometry beyond it is a unit or data error
 SPEED_LIMIT_MPS = 200.0
 REASONS = ('nan', 'wrong_frame', 'saturated', 'stuck', 'out_of_order', 'duplicate')
@@ -66,6 +68,17 @@ class Clean:
         """``index`` as an array (arange when None)."""
         return np.arange(self.stamps_ns.size) if self.index is None else self.index
 
+    def carry(self, quality: np.ndarray | None) -> np.ndarray:
+        """The input quality codes (T,) of the chunk given to ``process`` (None: VALID) for
+        these samples (N,) uint8: a synthetic sample's is VALID."""
+        if quality is None:
+            return np.zeros(self.accel.size, np.uint8)
+        if self.index is None:  # every sample accepted in order
+            return np.array(quality, np.uint8)
+        pos = self.positions()
+        return np.where(pos >= 0, np.asarray(quality, np.uint8)[np.maximum(pos, 0)], 0
+                        ).astype(np.uint8)
+
 
 class InputSanitizer:
     """Streaming classifier; ``counters`` holds rejected counts by reason plus gaps, resets and
@@ -86,6 +99,14 @@ class InputSanitizer:
         self._last: tuple[int, float, float] | None = None  # stamp, accel, speed of last accepted
         self._newest = np.iinfo(np.int64).min  # newest stamp seen (any sample)
         self._run: tuple[float, int] = (np.nan, 0)  # value and first stamp of the current run
+
+    @classmethod
+    def for_config(cls, config: InversionConfig, stuck_s: float = 0.0,
+                   backward_reset_s: float = 1.0) -> InputSanitizer:
+        """The sanitiser of an inversion config (rate, gaps, saturation, frame_id)."""
+        return cls(config.rate_hz, config.gap_factor, config.gap_policy, config.max_bridge_s,
+                   config.saturation_mps2, config.saturation_margin_mps2, config.frame_id,
+                   stuck_s=stuck_s, backward_reset_s=backward_reset_s)
 
     def set_limits(self, stuck_s: float, backward_reset_s: float) -> None:
         """Stuck duration (s, 0 = off) and backward time jump (s) that starts a new stream."""

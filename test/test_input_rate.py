@@ -1,4 +1,4 @@
-"""inverse.rate: the IMU rate and lost samples from jittered stamps, against synthetic stamps
+"""input.rate: the IMU rate and lost samples from jittered stamps, against synthetic stamps
 whose true rate, jitter and losses are known."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from railgsa_ros.inverse.rate import JITTER_TOLERANCE, count_blocks, count_steps
+from railgsa_ros.input.rate import JITTER_TOLERANCE, count_blocks, count_steps
 
 PERIOD_NS = 1e6  # 1 kHz nominal
 
