@@ -46,6 +46,8 @@ NAME = 'recorder'
 DEPTH = 0
 #: Most messages ``drain`` writes per topic at the stop (a publisher that never pauses).
 DRAIN_MAX = 1_000_000
+#: Most messages written per topic after each executor wake-up.
+BATCH = 1000
 SPECS = (
     ParamSpec('out', '', 'bag directory to create', read_only=True),
     ParamSpec('duration', 0.0, 'recording time (s), 0 = until stopped', bounds=(0.0, 1e9),
@@ -118,12 +120,14 @@ class RecorderNode(Node):
         if self.duration_s and time.monotonic() - self.started >= self.duration_s:
             self.done = True
 
-    def drain(self) -> None:
-        """Write the messages waiting in the reader histories, DRAIN_MAX per topic at most (a
-        stop after a burst must not lose what was received but not yet written)."""
+    def drain(self, limit: int = DRAIN_MAX) -> None:
+        """Write the messages waiting in the reader histories, ``limit`` per topic at most:
+        after each executor wake-up (taken in a loop, without the executor's per-message wait;
+        it alone wrote too few messages per second on a loaded machine) and at the stop (what
+        was received but not yet written)."""
         for sub, topic, cls in self._subs:
             with sub.handle:
-                for _ in range(DRAIN_MAX):
+                for _ in range(limit):
                     taken = sub.handle.take_message(cls, True)
                     if taken is None:
                         break
@@ -147,6 +151,7 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
                 stopped: Callable[[], bool]) -> None:
         while not (stopped() or node.done):
             executor.spin_once(timeout_sec=DISCOVERY_S)
+            node.drain(BATCH)
         if rclpy.ok():
             node.drain()
 
