@@ -11,7 +11,13 @@ Replay: the depth holds one second of the topic at the replay rate, and at least
 depth. ``reliable`` overrides the reliability of every topic (as ``ros2 bag play
 --qos-profile-overrides-path``); the writer history then holds RELIABLE_WINDOW_S at the replay
 rate (or the whole topic), so that reliable flow control resends whatever a stalled reader missed
-instead of overwriting it. Recording subscribes with the publishers' QoS.
+instead of overwriting it. Recording subscribes with the publishers' reliability and durability
+and a KEEP_ALL history: a RELIABLE message the recorder has no room for is not acknowledged, so
+its writer resends it (KEEP_LAST would overwrite the oldest one unwritten and acknowledge anyway).
+
+Per-sample outputs are KEEP_ALL (``output(keep_all=True)``): the writer never overwrites a
+message a reader has not acknowledged; a publish into a history full of unacknowledged messages
+waits (Fast DDS: 5000 messages, at most 100 ms) and then fails, and the node's pacer retries it.
 """
 
 from __future__ import annotations
@@ -54,11 +60,13 @@ _ZERO = QosTime(0, 0)
 
 @dataclass(frozen=True)
 class Profile:
-    """KEEP_LAST ``depth``; RELIABLE or BEST_EFFORT; TRANSIENT_LOCAL or VOLATILE."""
+    """KEEP_LAST ``depth`` (KEEP_ALL with ``keep_all``); RELIABLE or BEST_EFFORT;
+    TRANSIENT_LOCAL or VOLATILE."""
 
     reliable: bool
     depth: int
     transient_local: bool = False
+    keep_all: bool = False
 
 
 def history_depth(rate_hz: float, window_s: float = 1.0) -> int:
@@ -79,9 +87,10 @@ def sensor(depth: int = SENSOR_DEPTH, reliability: str = 'best_effort') -> Profi
     return Profile(reliability == 'reliable', depth)
 
 
-def output(depth: int = OUTPUT_DEPTH) -> Profile:
-    """Per-sample outputs: RELIABLE, VOLATILE."""
-    return Profile(True, depth)
+def output(depth: int = OUTPUT_DEPTH, keep_all: bool = False) -> Profile:
+    """Outputs: RELIABLE, VOLATILE; ``keep_all``: KEEP_ALL, the writer never overwrites a
+    message a reader has not acknowledged (a publish waits instead, bounded)."""
+    return Profile(True, depth, keep_all=keep_all)
 
 
 #: /diagnostics: RELIABLE, depth 10 (one array a second).
@@ -113,8 +122,10 @@ def replay(topic: TopicInfo, rate: float, reliable: bool = False) -> Profile:
     return replace(choice, reliable=True, depth=max(choice.depth, deep))
 
 
-def recording(offered: Sequence[Profile], depth: int) -> Profile:
-    """Reader QoS for recording a topic its publishers offer with ``offered``: KEEP_LAST
-    ``depth``; RELIABLE only if every publisher is; TRANSIENT_LOCAL only if every publisher is."""
-    return Profile(all(p.reliable for p in offered), depth,
-                   all(p.transient_local for p in offered))
+def recording(offered: Sequence[Profile], depth: int = 0) -> Profile:
+    """Reader QoS for recording a topic its publishers offer with ``offered``: KEEP_ALL (a
+    RELIABLE writer then keeps and resends what the recorder has no room for yet), or KEEP_LAST
+    ``depth`` when ``depth`` > 0; RELIABLE only if every publisher is; TRANSIENT_LOCAL only if
+    every publisher is."""
+    return Profile(all(p.reliable for p in offered), max(depth, 1),
+                   all(p.transient_local for p in offered), keep_all=depth <= 0)

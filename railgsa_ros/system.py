@@ -3,8 +3,11 @@
 Each process is ``python -m <module> ...`` with stdout/stderr in log files, an environment with
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and a reserved ``ROS_DOMAIN_ID`` (as
 ``domain_coordinator``: a bound localhost TCP port 32768 + id holds the id), readiness by waiting
-for a line of its output, and a stop by SIGINT, then SIGTERM, then SIGKILL. ROS-free: nothing here
-imports rclpy.
+for a line of its output, and a stop by SIGINT, then SIGTERM, then SIGKILL. Each process leads a
+process group of its own: a terminal's Ctrl-C (SIGINT to the foreground group) reaches only the
+parent, which forwards exactly one signal; in the parent's group a node got two, and the second,
+landing while the interpreter exited, killed it (exit -2, ``railgsa run`` exit 1 in one try of
+eight). ROS-free: nothing here imports rclpy.
 """
 
 from __future__ import annotations
@@ -117,9 +120,9 @@ class NodeResult:
 
 
 class NodeProcess:
-    """``python -m <module> <args>``; stdout/stderr go to ``<logdir>/<name>-<ns>.out|.err``, or
-    to this process's own when ``logdir`` is None (``railgsa run``: the nodes' lines on the
-    terminal; ``output`` is then empty)."""
+    """``python -m <module> <args>`` in a process group of its own; stdout/stderr go to
+    ``<logdir>/<name>-<ns>.out|.err``, or to this process's own when ``logdir`` is None
+    (``railgsa run``: the nodes' lines on the terminal; ``output`` is then empty)."""
 
     def __init__(self, module: str, args: list[str], logdir: Path | None,
                  name: str | None = None, cwd: Path | None = None,
@@ -136,7 +139,7 @@ class NodeProcess:
         try:
             self.proc = subprocess.Popen([sys.executable, '-m', module, *args], stdout=fds[0],
                                          stderr=fds[1], cwd=cwd, env=ros_env(localhost=localhost),
-                                         stdin=subprocess.DEVNULL)
+                                         stdin=subprocess.DEVNULL, process_group=0)
         finally:
             for fd in fds:
                 if fd is not None:

@@ -102,44 +102,115 @@ def test_bad_parameters_keep_the_node_unconfigured(module: str, cls: str,
         node.destroy_node()
 
 
-def test_change_state_service_activates_a_node_started_without_autostart(
-        ros_context: Any, wait_for: Callable, start_node: Callable) -> None:
-    from lifecycle_msgs.msg import Transition
-    from lifecycle_msgs.srv import ChangeState, GetState
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
+class LifecycleClient:
+    """``~/get_state`` and ``~/change_state`` of a node process, called from this process."""
 
-    params = {**PARAMS, 'autostart': False}
-    proc = start_node('railgsa_ros.nodes.irregularity_node',
-                      [a for k, v in params.items() for a in ('-p', f'{k}:={str(v).lower()}')])
-    client = Node('lifecycle_client', context=ros_context)
-    executor = SingleThreadedExecutor(context=ros_context)
-    get = client.create_client(GetState, 'irregularity_node/get_state')
-    change = client.create_client(ChangeState, 'irregularity_node/change_state')
-    if not (get.wait_for_service(90.0) and change.wait_for_service(10.0)):
-        graph = (client.get_node_names_and_namespaces(), client.get_service_names_and_types())
-        raise AssertionError(f'no lifecycle services; node alive: {proc.running()}; '
-                             f'graph: {graph}; stderr: {proc.stop().stderr}')
+    def __init__(self, node_name: str, context: Any, proc: Any) -> None:
+        from lifecycle_msgs.srv import ChangeState, GetState
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
 
-    def call(cli: Any, req: Any) -> Any:
+        self.node = Node(f'lifecycle_client_{node_name}', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self._get = self.node.create_client(GetState, f'{node_name}/get_state')
+        self._change = self.node.create_client(ChangeState, f'{node_name}/change_state')
+        if not (self._get.wait_for_service(90.0) and self._change.wait_for_service(10.0)):
+            graph = (self.node.get_node_names_and_namespaces(),
+                     self.node.get_service_names_and_types())
+            raise AssertionError(f'no lifecycle services; node alive: {proc.running()}; '
+                                 f'graph: {graph}; stderr: {proc.stop().stderr}')
+
+    def _call(self, cli: Any, req: Any) -> Any:
         """Retried: the graph may still list the services of nodes destroyed by earlier tests,
         and a request sent to those is never answered."""
+        import rclpy
+
         for _ in range(6):
             future = cli.call_async(req)
-            rclpy.spin_until_future_complete(client, future, executor, timeout_sec=10.0)
+            rclpy.spin_until_future_complete(self.node, future, self.executor, timeout_sec=10.0)
             if future.done():
                 return future.result()
             cli.remove_pending_request(future)
         raise AssertionError(f'no answer to {req}')
-    assert call(get, GetState.Request()).current_state.label == 'unconfigured'
-    assert client.count_subscribers('imu/data') == 0
+
+    def state(self) -> str:
+        from lifecycle_msgs.srv import GetState
+
+        return self._call(self._get, GetState.Request()).current_state.label
+
+    def change(self, transition: int | str) -> bool:
+        """Request a transition by id or label; the service's ``success``."""
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+
+        request = Transition(id=transition) if isinstance(transition, int) else \
+            Transition(label=transition)
+        return self._call(self._change, ChangeState.Request(transition=request)).success
+
+
+def test_change_state_service_activates_a_node_started_without_autostart(
+        ros_context: Any, wait_for: Callable, start_node: Callable) -> None:
+    from lifecycle_msgs.msg import Transition
+
+    params = {**PARAMS, 'autostart': False}
+    proc = start_node('railgsa_ros.nodes.irregularity_node',
+                      [a for k, v in params.items() for a in ('-p', f'{k}:={str(v).lower()}')])
+    client = LifecycleClient('irregularity_node', ros_context, proc)
+    assert client.state() == 'unconfigured'
+    assert client.node.count_subscribers('imu/data') == 0
     for tid in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
-        assert call(change, ChangeState.Request(transition=Transition(id=tid))).success
-    assert call(get, GetState.Request()).current_state.label == 'active'
-    assert wait_for(lambda: client.count_subscribers('imu/data') == 1, 10.0)
+        assert client.change(tid)
+    assert client.state() == 'active'
+    assert wait_for(lambda: client.node.count_subscribers('imu/data') == 1, 10.0)
     result = proc.stop(signal.SIGTERM)
     assert (result.rc, 'Traceback' in result.stderr) == (0, False), result.stderr
+
+
+def _invalid_transitions() -> dict[str, tuple[int | str, ...]]:
+    """State -> every request its state machine has no transition for (ids of the other
+    states' transitions, a label, an id that names no transition)."""
+    from lifecycle_msgs.msg import Transition
+
+    t = Transition
+    return {
+        'active': (t.TRANSITION_CONFIGURE, t.TRANSITION_CLEANUP, t.TRANSITION_ACTIVATE,
+                   t.TRANSITION_UNCONFIGURED_SHUTDOWN, t.TRANSITION_INACTIVE_SHUTDOWN,
+                   'cleanup', 'configure', 99),
+        'inactive': (t.TRANSITION_CONFIGURE, t.TRANSITION_DEACTIVATE,
+                     t.TRANSITION_ACTIVE_SHUTDOWN, 'deactivate'),
+        'unconfigured': (t.TRANSITION_ACTIVATE, t.TRANSITION_DEACTIVATE, t.TRANSITION_CLEANUP,
+                         'activate'),
+    }
+
+
+@pytest.mark.parametrize('module', ['irregularity_node', 'uncertainty_node'])
+def test_an_invalid_transition_is_refused_and_the_node_keeps_running(
+        module: str, ros_context: Any, wait_for: Callable, start_node: Callable) -> None:
+    """Issue 22: cleanup or configure while active killed either node (RCLError out of the
+    service callback, exit 1). Every request the current state has no transition for is
+    answered false, the state stays, and the node still walks its valid transitions, still
+    reads its input when active, shuts down by service and then exits 0 on SIGINT."""
+    from lifecycle_msgs.msg import Transition
+
+    t = Transition
+    params = [a for k, v in PARAMS.items() for a in ('-p', f'{k}:={str(v).lower()}')]
+    proc = start_node(f'railgsa_ros.nodes.{module}', params)
+    client = LifecycleClient(module, ros_context, proc)
+    assert wait_for(lambda: client.state() == 'active', 60.0)
+    invalid = _invalid_transitions()
+    for state, valid in (('active', t.TRANSITION_DEACTIVATE), ('inactive', t.TRANSITION_CLEANUP),
+                         ('unconfigured', t.TRANSITION_CONFIGURE)):
+        for request in invalid[state]:
+            assert not client.change(request), (state, request)
+            assert proc.running() and client.state() == state, (state, request, proc.output())
+        assert client.change(valid)
+    assert client.change(t.TRANSITION_ACTIVATE) and client.state() == 'active'
+    assert wait_for(lambda: client.node.count_subscribers('imu/data') == 1, 10.0)
+    # shut down by service, then SIGINT: the stop finds the node finalized
+    assert client.change(t.TRANSITION_ACTIVE_SHUTDOWN) and client.state() == 'finalized'
+    result = proc.stop(signal.SIGINT)
+    assert (result.rc, 'Traceback' in result.stderr) == (0, False), result.stderr
+    assert result.stderr.count('No transition matching') == sum(map(len, invalid.values()))
 
 
 #: seconds after the node module's first line ran (its handlers are in place): during the heavy

@@ -25,10 +25,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    'disk loses at most the file in progress')
     p.add_argument('--no-compress', dest='compress', action='store_false',
                    help='write uncompressed MCAP chunks (default zstd)')
-    p.add_argument('--depth', type=int, default=1000, metavar='N',
-                   help='reader history per topic, messages (default 1000, one second at 1 kHz); '
-                   'size it to the longest burst, e.g. the whole run for a faster-than-real-time '
-                   'replay')
+    p.add_argument('--depth', type=int, default=0, metavar='N',
+                   help='reader history per topic, messages (default 0: KEEP_ALL, a RELIABLE '
+                   'publisher resends what the recorder had no room for, nothing is lost); N > 0: '
+                   'KEEP_LAST N, the oldest unwritten messages are overwritten in a burst')
     p.set_defaults(func=run)
 
 

@@ -8,9 +8,11 @@ get the same value of every parameter that decides their outputs (inversion, veh
 policy, idle flush), or the band stamps would not be those of track/irregularity. Any problem
 is one line, exit 2, before anything starts. Then the nodes run as child processes
 (``system.System``) in the environment's ROS domain and discovery range (ROS_DOMAIN_ID,
-ROS_AUTOMATIC_DISCOVERY_RANGE: a deployment talks to the train's other computers); SIGINT and
-SIGTERM are forwarded to them (nodes first, then the recorder, so that it gets their last
-outputs); a node that exits on its own stops the others and makes the exit code non-zero.
+ROS_AUTOMATIC_DISCOVERY_RANGE: a deployment talks to the train's other computers), each in a
+process group of its own, so that a terminal's Ctrl-C reaches only ``railgsa run``. SIGINT,
+SIGTERM and SIGHUP (the terminal closed) are forwarded once to them (nodes first, then the
+recorder, so that it gets their last outputs; SIGHUP as SIGTERM); a node that exits on its own
+stops the others and makes the exit code non-zero.
 """
 
 from __future__ import annotations
@@ -30,8 +32,12 @@ OUTPUTS = ('track/irregularity', 'track/irregularity_band', 'track/sensitivity')
 #: parameters both nodes declare that may differ without changing any output
 TRANSPORT = frozenset({'imu_qos_depth', 'imu_reliability', 'odom_reliability',
                        'output_qos_depth', 'flush_rate_hz', 'hardware_id', 'autostart'})
-EXIT_GRACE_S = 1.0  #: a node ending this long before our own stop request is a failure, s
+#: the stop requests forwarded to the nodes, each as the signal sent to them
+FORWARDED: dict[int, int] = {signal.SIGINT: signal.SIGINT, signal.SIGTERM: signal.SIGTERM,
+             signal.SIGHUP: signal.SIGTERM}
 NAME = re.compile(r'[A-Za-z_][A-Za-z0-9_]*')
+#: longest wait for a stopped node (its last band delay published at the flush pace), s
+STOP_TIMEOUT_S = 60.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -127,11 +133,12 @@ def record_topics(namespace: str) -> list[str]:
 
 
 def forward_signals(stop: threading.Event, received: list[int]) -> Mapping[int, Any]:
-    """SIGINT/SIGTERM set ``stop`` and are noted in ``received``; returns the old handlers."""
+    """SIGINT/SIGTERM/SIGHUP set ``stop`` and are noted in ``received`` (as the signal to
+    forward, ``FORWARDED``); returns the old handlers."""
     def handler(signum: int, _frame: Any) -> None:
-        received.append(signum)
+        received.append(FORWARDED[signum])
         stop.set()
-    return {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    return {s: signal.signal(s, handler) for s in FORWARDED}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -153,10 +160,8 @@ def run(args: argparse.Namespace) -> int:
             for node in NODES:
                 system.node(node, ros_args(args.params, namespace))
             ended = system.watch(stop)
-            if ended is not None and ended.proc.returncode == 0 and stop.wait(EXIT_GRACE_S):
-                ended = None  # a terminal's Ctrl-C reached the node first
-            results = {p.name: p.stop(received[0] if received else signal.SIGINT).rc
-                       for p in reversed(system.processes)}
+            sig = received[0] if received else signal.SIGINT
+            results = {p.name: p.stop(sig, STOP_TIMEOUT_S).rc for p in reversed(system.processes)}
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

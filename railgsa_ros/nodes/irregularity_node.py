@@ -134,7 +134,7 @@ class IrregularityNode(StreamNode):
             self.grid = build_grid(values)
             depth = values['output_qos_depth']
             self._pubs.append(self.create_lifecycle_publisher(
-                PointStamped, 'track/irregularity_grid', output_qos(depth)))
+                PointStamped, 'track/irregularity_grid', output_qos(depth, keep_all=True)))
             self._grid_pacer = OutputPacer(self, self._pubs[-1], POINT_STAMPED, OUTPUT_FRAME,
                                            depth, values['flush_rate_hz'], self.lock)
 
@@ -302,13 +302,12 @@ class IrregularityNode(StreamNode):
             'band_delay_s': policy.delay_samples / cfg.rate_hz,
             'stability_margin_per_s': pipe.stability_margin if pipe is not None
             else float('nan'),
-            'published': totals.get('published', 0),
+            **self.output_values(totals),
             'output_rate_hz': delta.get('published', 0) / elapsed_s,
             **quality_values(totals, delta),
             'rebuilds': totals.get('rebuild', 0), 'reconfigures': totals.get('reconfigure', 0),
             'redesigns': totals.get('redesign', 0),
             'idle_flushes': totals.get('flush_idle', 0),
-            'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending,
             'held_for_speed': policy.held - policy.reordering,
             'held_for_order': policy.reordering,
             'internal_errors': totals.get('internal_error', 0),

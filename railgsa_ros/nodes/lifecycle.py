@@ -10,6 +10,11 @@ Transitions (REP-free summary; docs/nodes.md has the table):
   publishers disabled;
 - cleanup / shutdown: the model and every interface released (``release``).
 
+A transition the current state does not have (cleanup or configure while active, activate while
+unconfigured, any unknown id) is answered ``success: false`` on ``~/change_state``
+(rcl_lifecycle logs one WARN line); the node keeps its state and keeps running (rclpy raises
+RCLError for it inside the service callback, which ended the process with exit 1).
+
 Parameter ``autostart`` (default true): ``autostart()``, called at the end of the subclass
 constructor, walks the node to active and raises ConfigError when configuring fails; ``run`` turns
 that into exit code 2 and one line.
@@ -20,11 +25,14 @@ restart is visible there. Each activation logs one line (``describe``): method, 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 import time
 from typing import Any
 import uuid
 
+from lifecycle_msgs.srv import ChangeState
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.lifecycle import LifecycleState, Node, TransitionCallbackReturn
 
 from railgsa_ros.errors import ConfigError
@@ -52,6 +60,21 @@ class ManagedNode(Node):
         self.config_error: str | None = None
         self.activations = 0  #: transitions to active in this process
         self._autostarting = False  # autostart reports a failed configure itself (exit 2)
+        for service in self.services:
+            if service.srv_type is ChangeState:
+                service.callback = self._refusing_invalid(service.callback)
+
+    def _refusing_invalid(self, answer: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """The ``~/change_state`` callback ``answer``, with a transition the current state does
+        not have answered ``success: false`` instead of raising RCLError (rcl_lifecycle logs
+        the WARN line)."""
+        def guarded(request: Any, response: Any) -> Any:
+            try:
+                return answer(request, response)
+            except rclpy_implementation.RCLError:
+                response.success = False
+                return response
+        return guarded
 
     def autostart(self) -> None:
         """With parameter autostart (default true): ``start()``."""
@@ -76,8 +99,10 @@ class ManagedNode(Node):
 
     def finish(self) -> None:
         """Shut down through the lifecycle: deactivate (pending input processed, filters
-        flushed, outputs published and acknowledged), then release."""
-        self.trigger_shutdown()
+        flushed, outputs published and acknowledged), then release; nothing when the node
+        was already shut down (``~/change_state`` shutdown)."""
+        with suppress(rclpy_implementation.RCLError):  # finalized: released already
+            self.trigger_shutdown()
 
     def guarded(self, step: Callable[[], Any], what: str, recover: Callable[[], None]) -> Any:
         """``step()`` of the core, or None when it raised: the exception is counted as

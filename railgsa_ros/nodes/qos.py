@@ -19,9 +19,10 @@ from railgsa_ros.qos import OUTPUT_DEPTH, SENSOR_DEPTH, Profile
 
 
 def to_rclpy(profile: Profile) -> QoSProfile:
-    """The rclpy profile: KEEP_LAST depth, the reliability and durability of ``profile``."""
+    """The rclpy profile: the history, reliability and durability of ``profile``."""
     return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=profile.depth,
+        history=HistoryPolicy.KEEP_ALL if profile.keep_all else HistoryPolicy.KEEP_LAST,
+        depth=profile.depth,
         reliability=ReliabilityPolicy.RELIABLE if profile.reliable
         else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if profile.transient_local
@@ -31,7 +32,8 @@ def to_rclpy(profile: Profile) -> QoSProfile:
 def from_rclpy(profile: QoSProfile) -> Profile:
     """The decision-relevant part of an rclpy profile (a publisher's offered QoS)."""
     return Profile(profile.reliability == ReliabilityPolicy.RELIABLE, profile.depth,
-                   profile.durability == DurabilityPolicy.TRANSIENT_LOCAL)
+                   profile.durability == DurabilityPolicy.TRANSIENT_LOCAL,
+                   profile.history == HistoryPolicy.KEEP_ALL)
 
 
 def bag_record(profile: QoSProfile) -> Qos:
@@ -50,9 +52,9 @@ def sensor_qos(depth: int = SENSOR_DEPTH, reliability: str = 'best_effort') -> Q
     return to_rclpy(qos.sensor(depth, reliability))
 
 
-def output_qos(depth: int = OUTPUT_DEPTH) -> QoSProfile:
-    """``qos.output`` in rclpy: for the per-sample outputs."""
-    return to_rclpy(qos.output(depth))
+def output_qos(depth: int = OUTPUT_DEPTH, keep_all: bool = False) -> QoSProfile:
+    """``qos.output`` in rclpy: for outputs (``keep_all``: the paced per-sample ones)."""
+    return to_rclpy(qos.output(depth, keep_all))
 
 
 #: /diagnostics: ``qos.DIAGNOSTICS``.

@@ -2,11 +2,14 @@
 
 Parameters (fixed at start-up): ``out`` (bag directory to create), ``topics`` (string array),
 ``duration`` (s of wall time, 0 = until SIGINT/SIGTERM), ``split`` (s per storage file),
-``compress`` (zstd chunks) and ``depth`` (reader history per topic). A topic is subscribed as soon
-as a publisher of it appears, with the publishers' QoS (BEST_EFFORT if any of them is, else
-RELIABLE), and its offered QoS and type hash are stored. A reader history of ``depth`` buffers a
-burst faster than this process can write (size it like the publishers' writer history);
-SIGINT/SIGTERM write what is still waiting in it, then finish the bag (exit 0). A write error
+``compress`` (zstd chunks) and ``depth`` (reader history per topic; 0, the default: KEEP_ALL). A
+topic is subscribed as soon as a publisher of it appears, with the publishers' reliability
+(BEST_EFFORT if any of them is, else RELIABLE), and its offered QoS and type hash are stored.
+With KEEP_ALL a RELIABLE message the reader history has no room for is not acknowledged, so its
+writer keeps and resends it: a burst faster than this process writes (the nodes' flush on a
+loaded machine) slows the writers down instead of being lost, as KEEP_LAST 1000 lost 2.8-3.8 %
+of track/irregularity under load. SIGINT/SIGTERM write what is still waiting in the reader
+histories, then finish the bag (exit 0). A write error
 keeps the finished files readable and exits 2 with one error line naming the file.
 """
 
@@ -39,16 +42,20 @@ from railgsa_ros.playback.recording import BagRecorder, TopicSpec
 from railgsa_ros.playback.schedule import absolute
 
 NAME = 'recorder'
-#: Default reader history (messages): one second at 1 kHz.
-DEPTH = 1000
+#: Default reader history: KEEP_ALL (a KEEP_LAST depth when > 0).
+DEPTH = 0
+#: Most messages ``drain`` writes per topic at the stop (a publisher that never pauses).
+DRAIN_MAX = 1_000_000
+#: Most messages written per topic after each executor wake-up.
+BATCH = 1000
 SPECS = (
     ParamSpec('out', '', 'bag directory to create', read_only=True),
     ParamSpec('duration', 0.0, 'recording time (s), 0 = until stopped', bounds=(0.0, 1e9),
               read_only=True),
     ParamSpec('split', 60.0, 'seconds per storage file', bounds=(0.1, 1e6), read_only=True),
     ParamSpec('compress', True, 'zstd-compress the MCAP chunks', read_only=True),
-    ParamSpec('depth', DEPTH, 'reader history per topic (messages)', bounds=(1, 1_000_000),
-              read_only=True),
+    ParamSpec('depth', DEPTH, 'reader history per topic (messages; 0 = KEEP_ALL)',
+              bounds=(0, 1_000_000), read_only=True),
 )
 #: Period (s) of the topic discovery and of the flush/split check.
 DISCOVERY_S = 0.1
@@ -113,12 +120,14 @@ class RecorderNode(Node):
         if self.duration_s and time.monotonic() - self.started >= self.duration_s:
             self.done = True
 
-    def drain(self) -> None:
-        """Write the messages waiting in the reader histories, ``depth`` per topic at most (a
-        stop after a burst must not lose what was received but not yet written)."""
+    def drain(self, limit: int = DRAIN_MAX) -> None:
+        """Write the messages waiting in the reader histories, ``limit`` per topic at most:
+        after each executor wake-up (taken in a loop, without the executor's per-message wait;
+        it alone wrote too few messages per second on a loaded machine) and at the stop (what
+        was received but not yet written)."""
         for sub, topic, cls in self._subs:
             with sub.handle:
-                for _ in range(self.depth):
+                for _ in range(limit):
                     taken = sub.handle.take_message(cls, True)
                     if taken is None:
                         break
@@ -142,6 +151,7 @@ def run(args: list[str] | None = None, parameters: Mapping[str, Any] | None = No
                 stopped: Callable[[], bool]) -> None:
         while not (stopped() or node.done):
             executor.spin_once(timeout_sec=DISCOVERY_S)
+            node.drain(BATCH)
         if rclpy.ok():
             node.drain()
 

@@ -66,7 +66,8 @@ NODE_SPECS = (
               'it matches no best-effort publisher)', choices=RELIABILITIES, read_only=True),
     ParamSpec('odom_reliability', RELIABILITIES[0], 'odom subscription: best_effort or reliable',
               choices=RELIABILITIES, read_only=True),
-    ParamSpec('output_qos_depth', OUTPUT_DEPTH, 'per-sample output writer history (RELIABLE), '
+    ParamSpec('output_qos_depth', OUTPUT_DEPTH, 'per-sample output pacing: at most '
+              'output_qos_depth / 8 messages per 10 ms (the writer is RELIABLE KEEP_ALL), '
               'samples', (1, 100_000), read_only=True),
     ParamSpec('hardware_id', '', "hardware_id on /diagnostics ('' = the frame_id of the "
               'IMU messages)', read_only=True),
@@ -83,7 +84,7 @@ NODE_SPECS = (
               'the samples pending in the band filter (about 7 s) are flushed and published; '
               'keep it above max_bridge_s (1.2 s) so that a bridged dropout is no stream end, s',
               (0.05, 3600.0)),
-    ParamSpec('flush_rate_hz', 2000.0, 'flushed outputs are published at this rate on top of '
+    ParamSpec('flush_rate_hz', 1000.0, 'flushed outputs are published at this rate on top of '
               'the live ones, in slices of at most output_qos_depth / 8 per 10 ms, messages/s',
               (10.0, 1e6), read_only=True),
     *LOCATION_SPECS,

@@ -99,10 +99,12 @@ class StreamNode(ManagedNode):
 
     # ------------------------------------------------------------------ lifecycle pieces
     def create_output(self, msg_cls: type, topic: str, layout: StampedLayout) -> None:
-        """The per-sample output: a lifecycle publisher (``output_qos_depth``) and its pacer."""
+        """The per-sample output: a lifecycle publisher (RELIABLE, KEEP_ALL: a message is kept
+        until every reader acknowledged it) and its pacer (slices of ``output_qos_depth`` / 8)."""
         self._hardware.parameter = self._values['hardware_id']
         depth = self._values['output_qos_depth']
-        self._pubs.append(self.create_lifecycle_publisher(msg_cls, topic, output_qos(depth)))
+        self._pubs.append(self.create_lifecycle_publisher(msg_cls, topic,
+                                                          output_qos(depth, keep_all=True)))
         self._pacer = OutputPacer(self, self._pubs[-1], layout, OUTPUT_FRAME, depth,
                                   self._values['flush_rate_hz'], self.lock)
 
@@ -147,7 +149,7 @@ class StreamNode(ManagedNode):
         with self.lock:
             self.release_core()
             if self._pacer is not None:
-                self._counts['published'] += self._pacer.published
+                self._counts.update(self._paced())
                 self._pacer.destroy()
                 self._pacer = None
         for pub in self._pubs:
@@ -217,9 +219,23 @@ class StreamNode(ManagedNode):
         with self.lock:
             live = [] if self.input_policy is None else [Counter(self.core_counters())]
             intake = [] if self._intake is None else [self._intake.counts]
-            paced = Counter() if self._pacer is None else \
-                Counter(published=self._pacer.published)
-            return dict(sum((*live, *intake, self._counts, paced), self._retired.copy()))
+            return dict(sum((*live, *intake, self._counts, self._paced()), self._retired.copy()))
+
+    def _paced(self) -> Counter[str]:
+        """The live pacer's counts: published (taken by the writer), output_blocked (publishes
+        that found it full of unacknowledged messages), output_dropped."""
+        if self._pacer is None:
+            return Counter()
+        return Counter(published=self._pacer.published, output_blocked=self._pacer.blocked,
+                       output_dropped=self._pacer.dropped)
+
+    def output_values(self, totals: Mapping[str, int]) -> dict[str, int]:
+        """The output's diagnostics values: published, output_blocked, output_dropped (over the
+        node's life) and the pacer's queue now and at most."""
+        return {'published': totals.get('published', 0),
+                'output_blocked': totals.get('output_blocked', 0),
+                'output_dropped': totals.get('output_dropped', 0),
+                'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending}
 
     def _report_input(self, elapsed_s: float) -> Report:
         totals = self.counters()

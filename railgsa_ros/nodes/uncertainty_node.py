@@ -206,9 +206,8 @@ class UncertaintyNode(StreamNode):
             'rule': self.config.rule, 'order': self.config.order, 'fit': design.fit,
             'parameters': ' '.join(design.names), 'rule_points': design.points,
             'band_delay_samples': self.stream.policy.delay_samples,  # 0 before the first 64
-            'published': totals.get('published', 0), 'windows': totals.get('windows', 0),
+            **self.output_values(totals), 'windows': totals.get('windows', 0),
             'idle_flushes': totals.get('flush_idle', 0),
-            'output_queue': self._pacer.pending, 'output_queue_max': self._pacer.max_pending,
             'window_compute_ms': self._window_ms[0], 'window_compute_max_ms': self._window_ms[1],
             'cpu_fraction_of_one_core': cpu, **quality_values(totals, delta),
             'internal_errors': totals.get('internal_error', 0),
