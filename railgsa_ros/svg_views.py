@@ -31,7 +31,7 @@ from railgsa_ros.gis import SD_CLASSES, Feature
 
 BINS = 3000  # envelope bins of a profile: 2 x 3000 points per curve at most
 EARTH_R_M = 6371008.8  # mean radius, m
-MAP_W, MAP_H, MAP_PAD = 1000, (220, 520), 20  # width, least and largest drawn height
+MAP_W, MAP_H, MAP_PAD = 1000, (200, 440), 20  # width, least and largest drawn height
 PLOT_W, PLOT_H = 1000, 330
 PLOT_BOX = (58, 8, 930, 290)  # x, y, width, height of the plot area in the profile
 #: CSS class of each section class (gis.SD_CLASSES), None: no SD or no alert range
@@ -80,12 +80,13 @@ SCRIPT = '''
     var W = view.width.baseVal.value, H = view.height.baseVal.value;
     var g = svg.querySelector('g.axes'), km0 = +svg.dataset.km0, sign = +svg.dataset.sign;
     g.textContent = '';
-    var sx = step(b.width, 8), sy = step(b.height, 6), i, px, py;
-    for (i = Math.ceil(b.x / sx); i * sx <= b.x + b.width; i++) {
-      px = X + (i * sx - b.x) / b.width * W;
+    var sk = step(b.width / 1000, 8), sy = step(b.height, 6), i, px, py;
+    var ends = [km0 + sign * b.x / 1000, km0 + sign * (b.x + b.width) / 1000];
+    for (i = Math.ceil(Math.min.apply(null, ends) / sk); i * sk <= Math.max.apply(null, ends);
+         i++) {  // round km-posts, at their chainage
+      px = X + ((i * sk - km0) * 1000 * sign - b.x) / b.width * W;
       add(g, 'line', {x1: px, x2: px, y1: Y, y2: Y + H});
-      add(g, 'text', {x: px, y: Y + H + 15, 'class': 'x'},
-          (km0 + sign * i * sx / 1000).toFixed(digits(sx / 1000)));
+      add(g, 'text', {x: px, y: Y + H + 15, 'class': 'x'}, (i * sk).toFixed(digits(sk)));
     }
     for (i = Math.ceil(b.y / sy); i * sy <= b.y + b.height; i++) {
       py = Y + (i * sy - b.y) / b.height * H;
