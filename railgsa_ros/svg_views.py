@@ -10,7 +10,7 @@ drag, resets on a double click, and redraws the profile's axes (km-posts, mm) an
 scale bar. Strokes do not scale with the zoom; markers are zero-length round-capped strokes,
 so they stay round dots in a profile stretched along the track.
 
-Map projection: equirectangular about the features' mean latitude, a sketch whose scale is
+Map projection: equirectangular about the centre of the features, a sketch whose scale is
 off by about tan(lat0) times the latitude difference in radians (0.4 % 20 km north of the
 centre at 52 deg); the GeoJSON keeps the exact positions. A profile longer than ``BINS``
 cells is drawn as its min/max envelope (every peak kept at any zoom, the page's size bounded).
