@@ -28,9 +28,9 @@ from railgsa_ros.bag.run import write_run
 from railgsa_ros.imu import accel_covariance, imu_spec
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.offline import Source
-from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.stream import run_stream
 from railgsa_ros.scenario import run_scenario
+from railgsa_ros.standards.en13848 import Limits, en13848_table
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.coverage import draw_sensor, draw_vehicle
 from railgsa_ros.uncertainty.parameters import table3
@@ -53,14 +53,14 @@ def analyse(run, law, bag: Path) -> tuple[list[tuple[str, float, bool]], int]:
     run's bag lists, and whether the truth passes the alert limit at the 14 mm dip."""
     write_run(bag, run, accel_variance=accel_covariance(imu_spec('bmi088')), overwrite=True)
     review, _ = run_stream(Source(bag), UncertaintyConfig(qoi=''), NOMINAL, law,
-                           en13848_limits('d1'))
+                           Limits(en13848_table(), 'd1'))
     x = np.arange(0.0, run.chainage_m[-1] - run.chainage_m[0], 0.25)
     truth = band_distance(np.interp(x, run.chainage_m - run.chainage_m[0], run.truth_u_m), 0.25)
     rows = []
     for e in review.exceedances:
         near = (x >= e.start_m - 1.0) & (x <= e.end_m + 1.0)
         rows.append((e.confidence, e.probability, bool(np.max(np.abs(truth[near])) > e.limit_m)))
-    alert = en13848_limits('d1').at(np.array([SPEED]))[0, 0]
+    alert = Limits(en13848_table(), 'd1').at(np.zeros(1), np.array([SPEED]))[0, 0]
     dip = (x > 590) & (x < 615)
     return rows, int(np.max(np.abs(truth[dip])) > alert)
 

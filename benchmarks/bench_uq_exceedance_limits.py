@@ -37,9 +37,9 @@ from railgsa_ros.imu import accel_covariance, imu_spec
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.offline import Source
 from railgsa_ros.review.exceedances import Exceedance, listed
-from railgsa_ros.review.limits import LEVELS, en13848_limits
 from railgsa_ros.review.stream import run_stream
 from railgsa_ros.scenario import run_scenario
+from railgsa_ros.standards.en13848 import LEVELS, Limits, en13848_table
 from railgsa_ros.track import cosine_dip
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uncertainty.coverage import draw_sensor, draw_vehicle
@@ -53,8 +53,8 @@ DX = 0.25
 DIP_M = 6.0
 CUT = 0.5
 NEAR = 0.15  # dips within 15 % of the limit they are placed at
-LIMITS = en13848_limits('d1')
-AL, IL = LIMITS.at(np.array([SPEED]))[0, :2]
+LIMITS = Limits(en13848_table(), 'd1')
+AL, IL = LIMITS.at(np.zeros(1), np.array([SPEED]))[0, :2]
 
 
 def realistic() -> dict[str, Normal]:

@@ -7,15 +7,21 @@ from difflib import get_close_matches
 import math
 from pathlib import Path
 import re
+import stat
 from typing import Any
 
 import yaml
 
 from railgsa_ros.errors import ConfigError
 
+MAX_BYTES = 1 << 20  # configuration files are a few kB; a larger one is not one
+_NAME = re.compile(r'[\w./*~-]{1,64}')  # what a parameter, field or section name looks like
+
 
 def load_yaml(path: str | Path) -> Any:
-    """Parse a YAML file; missing, unreadable or malformed files raise ConfigError naming it.
+    """Parse a YAML file; ConfigError naming it, in one line that quotes nothing of the file,
+    when it is missing, unreadable, not a regular file (a device such as /dev/zero, a pipe, a
+    directory), larger than MAX_BYTES, not UTF-8 or malformed.
 
     Malformed includes what PyYAML lets escape as other exceptions: an impossible date
     (``2020-13-45``: ValueError), an integer of more than 4300 digits (ValueError), nesting
@@ -23,9 +29,17 @@ def load_yaml(path: str | Path) -> Any:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding='utf-8')
+        if not stat.S_ISREG(path.stat().st_mode):
+            raise ConfigError(f'{path}: not a regular file (a device, pipe or directory)')
+        with path.open('rb') as stream:
+            data = stream.read(MAX_BYTES + 1)  # at most: a file may grow after the check
     except OSError as exc:
         raise ConfigError(f'{path}: cannot read ({exc.strerror or exc})') from None
+    if len(data) > MAX_BYTES:
+        raise ConfigError(f'{path}: larger than {MAX_BYTES >> 20} MiB: not a configuration '
+                          'file')
+    try:
+        text = data.decode('utf-8')
     except UnicodeDecodeError:
         raise ConfigError(f'{path}: not a UTF-8 text file') from None
     try:
@@ -41,11 +55,29 @@ def load_yaml(path: str | Path) -> Any:
         raise ConfigError(f'{path}: invalid YAML value ({reason})') from None
 
 
+def key_name(key: Any) -> str | None:
+    """A mapping key as an error message may show it: a name (up to 64 letters, digits and
+    ``_./*~-``) as it is, a short number, boolean or null as repr; None for anything else (a
+    file that is not a configuration file, /etc/shadow say, has its lines as keys: never
+    echoed)."""
+    if isinstance(key, str):
+        return key if _NAME.fullmatch(key) else None
+    if key is None or isinstance(key, bool) or \
+            (isinstance(key, (int, float)) and abs(key) < 1e15):
+        return repr(key)
+    return None
+
+
 def key_list(keys: Iterable[Any]) -> str:
-    """Mapping keys for a one-line message: sorted, comma-separated; keys that are not
-    printable one-line strings (numbers, None, text with control characters) as repr."""
-    return ', '.join(sorted(k if isinstance(k, str) and k.isprintable() else repr(k)
-                            for k in keys))
+    """Mapping keys for a one-line message: the ``key_name`` ones sorted, comma-separated; the
+    others counted."""
+    shown = [key_name(k) for k in keys]
+    names = sorted(n for n in shown if n is not None)
+    others = len(shown) - len(names)
+    if others:
+        names.append(f'{others} more key{"s" if others > 1 else ""} that '
+                     f'{"are" if others > 1 else "is"} not a name')
+    return ', '.join(names)
 
 
 #: Parameters every ROS 2 node declares itself; a params file may set them for any node.
@@ -129,8 +161,8 @@ def _names(params: dict, source: str, section: str) -> dict[str, Any]:
     """``params`` whose keys are all names (printable non-empty strings), else ConfigError."""
     for key in params:
         if not isinstance(key, str) or not key.isprintable() or not key:
-            raise ConfigError(f'{source}: section {section}: parameter name {key!r} is not a '
-                              'name')
+            raise ConfigError(f'{source}: section {section}: parameter name '
+                              f'{key_name(key) or "(not shown)"} is not a name')
     return params
 
 

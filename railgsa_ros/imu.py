@@ -13,6 +13,10 @@ runs the chain over a stream in chunks (state kept); ``measure`` is one chunk of
 
 Units: m/s^2, s, Hz; noise density in (m/s^2)/sqrt(Hz) (one-sided), bias random walk in
 (m/s^2)/sqrt(s).
+
+A sensor with a gyro (``gyro: true``) measures the angular velocity (rad/s, REP 103 body axes)
+through the same chain with its own noise, bias, LSB and range (``gyro_chain``) and no gravity;
+without one, messages mark angular_velocity absent (REP 145: covariance[0] = -1).
 """
 
 from __future__ import annotations
@@ -54,12 +58,20 @@ class ImuSpec:
     stamp_jitter_s: float = 0.0  # standard deviation of the stamp error, s
     dropout_fraction: float = 0.0  # long-run fraction of lost samples, [0, 1)
     dropout_burst_s: float = 0.05  # mean length of a dropout burst, s
+    gyro: bool = False  # the sensor has a gyro: angular velocity measured, else absent
+    gyro_noise_density: float = 0.0  # (rad/s)/sqrt(Hz), white, every axis
+    gyro_bias: float = 0.0  # rad/s, every axis (zero-rate offset)
+    gyro_bias_rw: float = 0.0  # gyro bias random walk, (rad/s)/sqrt(s)
+    gyro_lsb: float = 0.0  # gyro quantisation step, rad/s (0: none)
+    gyro_range: float = math.inf  # gyro saturation at +-range, rad/s
     chip_cutoff_hz: float = 0.0  # -3 dB cut-off of the chip's causal low-pass, Hz (0: none)
     chip_order: float = 4.0  # its order (a Butterworth: datasheets give no order, [M])
 
     def __post_init__(self) -> None:
+        if not isinstance(self.gyro, bool):
+            raise ConfigError(f'imu.gyro: expected true or false, got {self.gyro!r}')
         for f in fields(self):
-            if f.name in ('name', 'bias'):
+            if f.name in ('name', 'bias', 'gyro'):
                 continue
             value = getattr(self, f.name)
             if isinstance(value, str):
@@ -85,12 +97,18 @@ class ImuSpec:
             'chip_cutoff_hz': 0 <= self.chip_cutoff_hz < self.output_rate_hz / 2,
             'chip_order': self.chip_order in range(1, 9),
         }
-        for name in ('noise_density', 'bias_rw', 'gravity', 'lsb', 'stamp_jitter_s'):
+        for name in ('noise_density', 'bias_rw', 'gravity', 'lsb', 'stamp_jitter_s',
+                     'gyro_noise_density', 'gyro_bias_rw', 'gyro_lsb'):
             checks[name] = 0 <= getattr(self, name) < math.inf
+        checks['gyro_bias'] = math.isfinite(self.gyro_bias)
+        checks['gyro_range'] = self.gyro_range > 0
         checks['clock_drift_ppm'] = abs(self.clock_drift_ppm) < 1e5
         for name, ok in checks.items():
             if not ok:
-                raise ConfigError(f'imu.{name}: invalid value {getattr(self, name)!r}')
+                why = (f' (must be below half the output rate, {self.output_rate_hz:g} Hz: '
+                       'a chip setting runs at its own output rate)'
+                       if name == 'chip_cutoff_hz' else '')
+                raise ConfigError(f'imu.{name}: invalid value {getattr(self, name)!r}{why}')
 
     @property
     def antialias_hz(self) -> float:
@@ -98,8 +116,10 @@ class ImuSpec:
         return self.antialias_ratio * self.output_rate_hz
 
 
+DEG = math.pi / 180.0  # rad per degree
+
 PRESETS: dict[str, ImuSpec] = {
-    'ideal': ImuSpec(name='ideal'),
+    'ideal': ImuSpec(name='ideal', gyro=True),
     # Analog Devices ADXL355 (rail_domain.md section 4): 22.5 ug/sqrt(Hz) [datasheet], +-2 g
     # range [datasheet], 20 bit = 256000 LSB/g at +-2 g, ODR 1 kHz of 3.9 Hz-4 kHz [datasheet],
     # bandwidth ODR/4 [AD forum]. Bias 3 mg = 0.15 mg/degC tempco [secondary] x 20 degC; random
@@ -114,10 +134,16 @@ PRESETS: dict[str, ImuSpec] = {
     # [datasheet], ODR 400 Hz of 12.5-1600 Hz, bandwidth 0.4 ODR (ODR 50 Hz -> 20 Hz [code]).
     # Bias 10 mg (20 degC in the 3-15 mg range), 20 ug/sqrt(s) random walk, 0.2 % scale error,
     # 50 ppm clock, 0.2 ms jitter, 0.5 % dropouts in 50 ms bursts: assumptions as above.
+    # Its gyro: 0.014 deg/s/sqrt(Hz) [datasheet], the +-125 deg/s range (the finest: a car body
+    # pitches at well under 1 deg/s) with 16 bit = 262.1 LSB/(deg/s) [datasheet], zero-rate
+    # offset 0.5 deg/s (inside the +-1 deg/s of the datasheet), random walk 1e-4 (rad/s)/sqrt(s):
+    # assumptions.
     'bmi088': ImuSpec(name='bmi088', output_rate_hz=400.0, antialias_ratio=0.4,
                       noise_density=175 * UG, bias=(10 * MG, 10 * MG, 10 * MG), bias_rw=20 * UG,
                       scale_factor=2e-3, lsb=G / 10920, range_mps2=3 * G, clock_drift_ppm=50.0,
-                      stamp_jitter_s=2e-4, dropout_fraction=5e-3, dropout_burst_s=0.05),
+                      stamp_jitter_s=2e-4, dropout_fraction=5e-3, dropout_burst_s=0.05,
+                      gyro=True, gyro_noise_density=0.014 * DEG, gyro_bias=0.5 * DEG,
+                      gyro_bias_rw=1e-4, gyro_lsb=125 * DEG / 32768, gyro_range=125 * DEG),
 }
 SETTING_ANTIALIAS_RATIO = 0.45  # with a chip filter the FIR only guards the decimation
 
@@ -171,6 +197,15 @@ def load_imu(path: str | Path) -> ImuSpec:
         raise ConfigError(f'{path}: {exc}') from None
 
 
+def gyro_chain(spec: ImuSpec) -> ImuSpec:
+    """The gyro of ``spec`` as the accelerometer chain runs it (``MemsStream`` on angular
+    velocities, rad/s): its noise, bias on every axis, walk, LSB and range, no gravity; the
+    rate, filter, scale error and clock of the sensor."""
+    return replace(spec, name=f'{spec.name} gyro', noise_density=spec.gyro_noise_density,
+                   bias=(spec.gyro_bias,) * 3, bias_rw=spec.gyro_bias_rw, gravity=0.0,
+                   lsb=spec.gyro_lsb, range_mps2=spec.gyro_range)
+
+
 def noise_bandwidth_hz(spec: ImuSpec) -> float:
     """Equivalent noise bandwidth (Hz) of the chip and anti-alias filters: integral of |H(f)|^2
     over [0, fs/2]; nearly independent of the filters' own rate, here four times the output
@@ -192,6 +227,12 @@ def accel_covariance(spec: ImuSpec) -> float:
     filter) plus the quantisation variance LSB^2 / 12.
     """
     return spec.noise_density ** 2 * noise_bandwidth_hz(spec) + spec.lsb ** 2 / 12
+
+
+def gyro_covariance(spec: ImuSpec) -> float:
+    """Per-axis gyro variance ((rad/s)^2) for the REP 145 diagonal, as ``accel_covariance``;
+    -1 (REP 145: absent) for a sensor without a gyro."""
+    return accel_covariance(gyro_chain(spec)) if spec.gyro else -1.0
 
 
 @dataclass(frozen=True)

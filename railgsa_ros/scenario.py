@@ -1,4 +1,4 @@
-"""One simulated run: track profile + quarter vehicle + MEMS IMU -> stamped data with truth.
+"""One simulated run: track profile + vehicle + MEMS IMU -> stamped data with truth.
 
 The vehicle runs over the profile at a given speed (constant or a speed profile in time). The
 forward model runs at an internal rate that is a multiple q >= 2 of the IMU output rate, at least
@@ -7,6 +7,11 @@ the shortest wavelength or defect at the top speed. Output sample k is the simul
 so accel, speed, chainage and truth all refer to the same true sample time t = k / rate_hz.
 The vehicle starts at rest in equilibrium on the track under its first position (no start-up
 transient from a step onto the irregularity there).
+
+The vehicle is any ``models.VehicleModel`` (a vehicle file chooses it): each wheelset sees the
+profile at its own chainage, chainage(t) - d_w (``wheel_offsets_m``: fixed offsets in distance,
+so variable speed included), and the run's chainage and truth are the reference wheelset's.
+A coach's pitch rate reaches the IMU's gyro (angular_velocity.y) when the sensor has one.
 
 ``RunStream`` produces the run in chunks of bounded size (profile, vehicle and sensor keep their
 state across chunks: the chunks of a run are equal to its one-shot arrays); ``run_scenario``
@@ -26,11 +31,21 @@ from typing import Any
 import numpy as np
 
 from railgsa_ros.errors import ConfigError
-from railgsa_ros.imu import FRAME_ID, ImuSpec, MemsStream, accel_covariance, imu_spec
-from railgsa_ros.simulate import vehicle_bank
+from railgsa_ros.imu import (
+    FRAME_ID,
+    ImuSamples,
+    ImuSpec,
+    MemsStream,
+    accel_covariance,
+    gyro_chain,
+    gyro_covariance,
+    imu_spec,
+)
+from railgsa_ros.models import VehicleModel, as_model, load_model
+from railgsa_ros.simulate import WheelsetBank
 from railgsa_ros.speed_profile import SpeedProfile
 from railgsa_ros.track import DEFAULT_WAVELENGTHS, apply_defects, line_profile, parse_defects
-from railgsa_ros.vehicle import VehicleParams, load_vehicle
+from railgsa_ros.vehicle import VehicleParams
 
 MIN_SIM_RATE_HZ = 2000.0
 DEFAULT_START_NS = 1_700_000_000 * 10**9  # 2023-11-14: realistic, non-zero (nodes refuse 0)
@@ -44,9 +59,14 @@ class Run:
 
     stamps_ns: int64 sensor stamps (clock drift and jitter included); accel: (T, 3) specific
     force in ``frame_id`` (m/s^2, +g on z); t_true_s: true sample times (s); speed_mps and
-    chainage_m (m) at the true time; truth_u_m: irregularity under the wheel at the true time (m).
-    track: u(x) (m) of the simulated track (defects included) at any chainage array x (m), also
-    under the dropped samples (None in runs built by hand).
+    chainage_m (m) at the true time; truth_u_m: irregularity under the wheel at the true time
+    (m) (chainage and truth: the reference wheelset's). gyro: (T, 3) angular velocity in rad/s
+    (REP 103; y = a coach's pitch rate) with its per-axis variance gyro_covariance ((rad/s)^2),
+    or None when the sensor has no gyro or the vehicle no pitch. imu_names: the further IMUs of
+    a coach file; imu_accel and imu_gyro (T, K, 3): their specific force and angular velocity
+    at the primary's stamps (None without further IMUs, or without a gyro). track: u(x) (m) of
+    the simulated track (defects included) at any chainage array x (m), also under the dropped
+    samples (None in runs built by hand).
     """
 
     stamps_ns: np.ndarray
@@ -60,12 +80,17 @@ class Run:
     accel_covariance: float  # per-axis variance for the REP 145 diagonal, (m/s^2)^2
     n_dropped: int
     sensor: ImuSpec
-    vehicle: VehicleParams | np.ndarray
+    vehicle: VehicleParams | np.ndarray | VehicleModel  # a quarter car's parameters or a model
     profile: str
     defects: str | None
     seed: int | None
     frame_id: str = FRAME_ID
     odom_scale: float = 1.0  # odometry speed = (1 + wheel-diameter error) * true speed
+    gyro: np.ndarray | None = None
+    gyro_covariance: float = -1.0
+    imu_names: tuple[str, ...] = ()
+    imu_accel: np.ndarray | None = None
+    imu_gyro: np.ndarray | None = None
     track: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False,
                                                               repr=False)
 
@@ -113,12 +138,17 @@ def simulation_rate(rate_hz: float, v_max: float, shortest_m: float,
     return q * rate_hz, q
 
 
-def _vehicle(vehicle: VehicleParams | np.ndarray | str | Path | None
-             ) -> VehicleParams | np.ndarray:
+Vehicle = VehicleParams | np.ndarray | VehicleModel | str | Path | None
+
+
+def _vehicle(vehicle: Vehicle) -> VehicleParams | np.ndarray | VehicleModel:
+    """What a run records as its vehicle: a quarter car's parameters (Table 1 for None), else
+    the model (a vehicle file's model)."""
     if vehicle is None:
         return VehicleParams()
     if isinstance(vehicle, (str, Path)):
-        return load_vehicle(vehicle)
+        model: Any = load_model(vehicle)
+        return model.params if model.kind == 'quarter_car' else model
     return vehicle
 
 
@@ -132,8 +162,7 @@ class RunStream:
 
     def __init__(self, profile_spec: str, speed_mps: Speed, duration_s: float,
                  rate_hz: float | None, sensor: str | ImuSpec, seed: int | None = 0,
-                 defects: str | list | None = None,
-                 vehicle: VehicleParams | np.ndarray | str | Path | None = None, *,
+                 defects: str | list | None = None, vehicle: Vehicle = None, *,
                  wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS,
                  start_ns: int = DEFAULT_START_NS, start_m: float | None = None,
                  line_seed: int | None = None, odom_scale: float = 1.0,
@@ -154,18 +183,25 @@ class RunStream:
         self.max_speed_mps = float(check_speed(speed_mps).max())
         self.fs_sim, self.q = simulation_rate(rate, self.max_speed_mps, shortest)
         self.speed, self.duration_s = speed_mps, float(duration_s)
-        profile_seed, imu_seed = (int(child.generate_state(1)[0])
-                                  for child in np.random.SeedSequence(seed).spawn(2))
+        self.theta = _vehicle(vehicle)
+        self.model = as_model(self.theta)
+        # the track, then accelerometer and gyro of each IMU: one independent seed each (the
+        # first two as before gyros and further IMUs existed)
+        n_imus = 1 + sum(c.startswith('accel_z:') for c in self.model.channels)
+        profile_seed, *self.imu_seeds = (int(child.generate_state(1)[0]) for child in
+                                         np.random.SeedSequence(seed).spawn(1 + 2 * n_imus))
         self.line, origin = line_profile(profile_spec,
                                          profile_seed if line_seed is None else line_seed,
                                          wavelength_range)
-        self.start_m = origin if start_m is None else float(start_m)
+        self.offsets_m = np.asarray(self.model.wheel_offsets_m, dtype=float)
+        # by default every wheelset starts on the profile: the reference one the vehicle's
+        # length behind the reference point ahead of the origin
+        behind = max(0.0, float(self.offsets_m.max()))
+        self.start_m = origin + behind if start_m is None else float(start_m)
         if not math.isfinite(self.start_m):
             raise ConfigError(f'start chainage: must be finite, got {start_m!r} m')
-        self.theta = _vehicle(vehicle)
-        self.imu_seed = imu_seed
-        self.bank = vehicle_bank(self.theta, 1.0 / self.fs_sim)
-        self.mems = MemsStream(spec, self.fs_sim, imu_seed)
+        self.bank = WheelsetBank(self.model, 1.0 / self.fs_sim)
+        self.imus = CarBodyImus(spec, self.fs_sim, self.model.channels, self.imu_seeds)
         step = math.lcm(self.bank.block, self.q)
         self.chunk = step * max(1, int(min(chunk_s * self.fs_sim, 2.0 ** 62)) // step)
         self.template = Run(
@@ -174,13 +210,16 @@ class RunStream:
             rate_hz=rate, sim_rate_hz=self.fs_sim, accel_covariance=accel_covariance(spec),
             n_dropped=0, sensor=spec, vehicle=self.theta, profile=profile_spec,
             defects=defects if isinstance(defects, str) else None, seed=seed,
-            odom_scale=float(odom_scale), track=partial(_track, self.line, self.defects))
+            odom_scale=float(odom_scale), track=partial(_track, self.line, self.defects),
+            gyro_covariance=gyro_covariance(spec) if self.imus.rate_row is not None else -1.0,
+            imu_names=self.imus.names)
         self.start_ns = np.int64(start_ns)
 
     def __iter__(self) -> Iterator[Run]:
         """The chunks, from the start (each iteration is the whole run again)."""
-        if self.mems.n_in:  # iterated before: start the sensor again
-            self.mems = MemsStream(self.spec, self.fs_sim, self.imu_seed)
+        if self.imus.started:  # iterated before: start the sensors again
+            self.imus = CarBodyImus(self.spec, self.fs_sim, self.model.channels, self.imu_seeds)
+        reference = int(np.argmin(np.abs(self.offsets_m)))  # offset 0: the output chainage
         n_sim = self.n_out * self.q
         dt = 1.0 / self.fs_sim
         travel, v_last = np.zeros(1), None
@@ -196,10 +235,12 @@ class RunStream:
             travel = travel if v_last is None else travel[1:]
             v_last = v[-1]
             chainage = self.start_m + travel
-            u = _track(self.line, self.defects, chainage)
+            wheels = np.stack([_track(self.line, self.defects, chainage - d)
+                               for d in self.offsets_m])  # (W, n): each wheelset's profile
+            u = wheels[reference]
             if lo == 0:  # the vehicle starts at rest on the track where it stands: no step
-                self.bank.settle(float(u[0]))
-            imu = self.mems.process(self.bank.process(u)[0, 0], final=hi == n_sim)
+                self.bank.settle(wheels[:, 0])
+            imu, *values = self.imus.process(self.bank.process(wheels)[0], final=hi == n_sim)
             out = index % self.q == 0
             pending = [np.concatenate([p, x[out]]) for p, x in
                        zip(pending, (v, chainage, u), strict=True)]
@@ -209,7 +250,57 @@ class RunStream:
             yield replace(self.template, stamps_ns=imu.stamps_ns[keep] + self.start_ns,
                           accel=imu.accel[keep], t_true_s=imu.t_true_s[keep],
                           speed_mps=speed[keep], chainage_m=chain[keep],
-                          truth_u_m=truth[keep], n_dropped=int(np.sum(~keep)))
+                          truth_u_m=truth[keep], n_dropped=int(np.sum(~keep)),
+                          gyro=_kept(values[0], keep), imu_accel=_kept(values[1], keep),
+                          imu_gyro=_kept(values[2], keep))
+
+
+class CarBodyImus:
+    """The IMUs on the car body, run over a model's channels in chunks.
+
+    Per IMU (the primary, then one per ``accel_z:<name>`` channel) an accelerometer
+    ``MemsStream`` and, when the sensor has a gyro and the vehicle pitches, a gyro stream on the
+    pitch rate (``gyro_chain``); ``seeds``: accelerometer and gyro seed of each IMU in turn.
+    The further IMUs share the primary's stamps and dropouts (one logger): their values only.
+    """
+
+    def __init__(self, spec: ImuSpec, fs_sim: float, channels: tuple[str, ...],
+                 seeds: list[int]) -> None:
+        self.rows = [0] + [i for i, c in enumerate(channels) if c.startswith('accel_z:')]
+        self.names = tuple(channels[i].split(':', 1)[1] for i in self.rows[1:])
+        self.rate_row = channels.index('pitch_rate') \
+            if spec.gyro and 'pitch_rate' in channels else None
+        self.accel = [MemsStream(spec, fs_sim, s) for s in seeds[0:2 * len(self.rows):2]]
+        self.gyro = [] if self.rate_row is None else \
+            [MemsStream(gyro_chain(spec), fs_sim, s) for s in seeds[1:2 * len(self.rows):2]]
+
+    @property
+    def started(self) -> bool:
+        """Whether any input went in (a stream cannot restart)."""
+        return self.accel[0].n_in > 0
+
+    def process(self, channels: np.ndarray, final: bool
+                ) -> tuple[ImuSamples, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """The primary IMU's samples for the next chunk of channels (C, n) and the other
+        ``Run`` arrays at its outputs: gyro (T, 3), imu_accel (T, K, 3) and imu_gyro
+        (T, K, 3) of the K further IMUs (None when absent)."""
+        primary = self.accel[0].process(channels[0], final=final)
+        extra = [m.process(channels[r], final=final).accel
+                 for m, r in zip(self.accel[1:], self.rows[1:], strict=True)]
+        gyros = []
+        if self.rate_row is not None:
+            rate = channels[self.rate_row]
+            zero = np.zeros_like(rate)
+            omega = np.column_stack([zero, rate, zero])
+            gyros = [g.process(omega, final=final).accel for g in self.gyro]
+        return (primary, gyros[0] if gyros else None,
+                np.stack(extra, axis=1) if extra else None,
+                np.stack(gyros[1:], axis=1) if extra and gyros else None)
+
+
+def _kept(values: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:
+    """The delivered rows of an optional array."""
+    return None if values is None else values[keep]
 
 
 def _track(line: Callable[[np.ndarray], np.ndarray], defects: list, x: np.ndarray
@@ -220,8 +311,7 @@ def _track(line: Callable[[np.ndarray], np.ndarray], defects: list, x: np.ndarra
 
 def run_scenario(profile_spec: str, speed_mps: Speed, duration_s: float,
                  rate_hz: float | None, sensor: str | ImuSpec, seed: int | None = 0,
-                 defects: str | list | None = None,
-                 vehicle: VehicleParams | np.ndarray | str | Path | None = None, *,
+                 defects: str | list | None = None, vehicle: Vehicle = None, *,
                  wavelength_range: tuple[float, float] = DEFAULT_WAVELENGTHS,
                  start_ns: int = DEFAULT_START_NS, start_m: float | None = None,
                  line_seed: int | None = None, odom_scale: float = 1.0) -> Run:
@@ -230,13 +320,14 @@ def run_scenario(profile_spec: str, speed_mps: Speed, duration_s: float,
     profile_spec: german-low|german-high|fra-N|paper|file:CSV (track.line_profile); speed_mps:
     a constant, samples spread evenly over the duration or a ``speed_profile.SpeedProfile``
     (m/s); duration_s (s); rate_hz: IMU output rate (None: the preset's); sensor: preset name
-    or ImuSpec; seed drives profile and sensor (independent streams); defects: spec string or
-    list (track.parse_defects); vehicle: VehicleParams, theta (5,), a vehicle YAML path or None
-    (Table 1); start_ns: stamp of the first sample (ns; default DEFAULT_START_NS: a zero stamp
-    is malformed for the nodes); start_m: chainage at the start (m; default the profile's
-    origin: 0, or a CSV's first chainage); line_seed: the track's seed (default: drawn from
-    seed), so that runs with other seeds pass over the same line; odom_scale: odometry speed
-    / true speed (1 + wheel-diameter error).
+    or ImuSpec; seed drives profile and sensor (independent streams); defects: spec string or list
+    (track.parse_defects); vehicle: VehicleParams, theta (5,), a ``models.VehicleModel``, a vehicle
+    YAML path (quarter car or coach) or None (Table 1); start_ns: stamp of the first sample (ns;
+    default DEFAULT_START_NS: a zero stamp is malformed for the nodes); start_m: the reference
+    wheelset's chainage at the start (m; default the profile's origin, 0 or a CSV's first chainage,
+    plus the distance of the last wheelset behind the reference: every wheelset on the profile);
+    line_seed: the track's seed (default: drawn from seed), so that runs with other seeds pass over
+    the same line; odom_scale: odometry speed / true speed (1 + wheel-diameter error).
     """
     stream = RunStream(profile_spec, speed_mps, duration_s, rate_hz, sensor, seed, defects,
                        vehicle, wavelength_range=wavelength_range, start_ns=start_ns,

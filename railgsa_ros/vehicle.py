@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -43,10 +43,69 @@ def _coerce_number(value: Any) -> Any:
     return value
 
 
+def check_parameter(name: str, value: Any, unit: str, bounds: tuple[float, float]) -> float:
+    """``value`` as a float: a positive finite number (numeric strings accepted) inside the
+    inclusive ``bounds``; else ConfigError naming ``name`` (e.g. 'vehicle.k_s') and ``unit``."""
+    value = _coerce_number(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f'{name}: expected a number in {unit}, got {value!r}')
+    try:
+        number = float(value)
+    except OverflowError:  # an int beyond the float range
+        number = math.inf
+    if not math.isfinite(number) or number <= 0:
+        raise ConfigError(f'{name}: must be a positive finite number in {unit}, got {number!r}')
+    low, high = bounds
+    if not low <= number <= high:
+        raise ConfigError(f'{name}: {number:g} {unit} is outside the physical range '
+                          f'[{low:g}, {high:g}] {unit}')
+    return number
+
+
+def check_fields(data: Any, names: tuple[str, ...], source: str) -> None:
+    """ConfigError naming ``source`` unless ``data`` is a mapping with exactly ``names``."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f'{source}: expected a mapping of {", ".join(names)}')
+    unknown = set(data) - set(names)
+    if unknown:
+        raise ConfigError(f'{source}: unknown field(s) {key_list(unknown)}; '
+                          f'expected {", ".join(names)}')
+    missing = [n for n in names if n not in data]
+    if missing:
+        raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
+
+
+class ParamSet:
+    """Base of the frozen parameter dataclasses (SI units): every field is checked against
+    ``UNITS`` and ``BOUNDS`` (``check_parameter``: ConfigError naming 'vehicle.<field>')."""
+
+    NAMES: ClassVar[tuple[str, ...]]
+    UNITS: ClassVar[dict[str, str]]
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]]
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            object.__setattr__(self, f.name, check_parameter(
+                f'vehicle.{f.name}', getattr(self, f.name), self.UNITS[f.name],
+                self.BOUNDS[f.name]))
+
+    def as_array(self) -> np.ndarray:
+        """Return the parameters as a float array of shape (n,), ordered as NAMES."""
+        return np.array([getattr(self, n) for n in self.NAMES])
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the parameters as a plain dict."""
+        return asdict(self)  # type: ignore[call-overload]
+
+
 @dataclass(frozen=True)
-class VehicleParams:
+class VehicleParams(ParamSet):
     """Quarter-vehicle parameters (SI units); defaults are the paper's Table 1. Each must lie
     in ``PARAM_BOUNDS`` (ConfigError naming the field otherwise)."""
+
+    NAMES: ClassVar[tuple[str, ...]] = PARAM_NAMES
+    UNITS: ClassVar[dict[str, str]] = PARAM_UNITS
+    BOUNDS: ClassVar[dict[str, tuple[float, float]]] = PARAM_BOUNDS
 
     m_s: float = 9875.0
     m_us: float = 1100.0
@@ -54,59 +113,32 @@ class VehicleParams:
     k_us: float = 1.42e8
     c: float = 1.2e5
 
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = _coerce_number(getattr(self, f.name))
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f'vehicle.{f.name}: expected a number in {PARAM_UNITS[f.name]}, '
-                                  f'got {value!r}')
-            try:
-                number = float(value)
-            except OverflowError:  # an int beyond the float range
-                number = math.inf
-            if not math.isfinite(number) or number <= 0:
-                raise ConfigError(f'vehicle.{f.name}: must be a positive finite number in '
-                                  f'{PARAM_UNITS[f.name]}, got {number!r}')
-            low, high = PARAM_BOUNDS[f.name]
-            if not low <= number <= high:
-                unit = PARAM_UNITS[f.name]
-                raise ConfigError(f'vehicle.{f.name}: {number:g} {unit} is outside the physical '
-                                  f'range [{low:g}, {high:g}] {unit}')
-            object.__setattr__(self, f.name, number)
-
-    def as_array(self) -> np.ndarray:
-        """Return the parameters as a float array of shape (5,), ordered as PARAM_NAMES."""
-        return np.array([getattr(self, n) for n in PARAM_NAMES])
-
-    def as_dict(self) -> dict[str, float]:
-        """Return the parameters as a plain dict."""
-        return asdict(self)
-
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any], source: str = 'vehicle') -> VehicleParams:
         """Build from a mapping with every field present; unknown or missing keys are errors."""
-        if not isinstance(data, Mapping):
-            raise ConfigError(f'{source}: expected a mapping of {", ".join(PARAM_NAMES)}')
-        unknown = set(data) - set(PARAM_NAMES)
-        if unknown:
-            raise ConfigError(f'{source}: unknown field(s) {key_list(unknown)}; '
-                              f'expected {", ".join(PARAM_NAMES)}')
-        missing = [n for n in PARAM_NAMES if n not in data]
-        if missing:
-            raise ConfigError(f'{source}: missing field(s) {", ".join(missing)}')
+        check_fields(data, PARAM_NAMES, source)
         return cls(**{n: data[n] for n in PARAM_NAMES})
 
 
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Load ``vehicle:`` parameters from a YAML file such as ``config/vehicle.yaml``."""
     doc = load_yaml(path)
-    section = doc.get('vehicle') if isinstance(doc, dict) else None
-    if section is None:
-        raise ConfigError(f'{path}: missing top-level "vehicle:" section')
     try:
-        return VehicleParams.from_mapping(section)
+        return vehicle_from_doc(doc)
     except ConfigError as exc:
         raise ConfigError(f'{path}: {exc}') from None
+
+
+def vehicle_from_doc(doc: Any) -> VehicleParams:
+    """The quarter car of a parsed vehicle file: its ``vehicle:`` section. A file of another
+    model (``model: coach``) is refused by name (ConfigError without the file name)."""
+    if isinstance(doc, dict) and doc.get('model', 'quarter_car') != 'quarter_car':
+        raise ConfigError(f'model: {doc["model"]!r}: this entry point takes a quarter car '
+                          '(vehicle: m_s, m_us, k_s, k_us, c; docs/vehicles.md)')
+    section = doc.get('vehicle') if isinstance(doc, dict) else None
+    if section is None:
+        raise ConfigError('missing top-level "vehicle:" section')
+    return VehicleParams.from_mapping(section)
 
 
 def as_theta(params: VehicleParams | np.ndarray | Mapping[str, float]) -> np.ndarray:

@@ -268,3 +268,36 @@ def test_recover_a_recorders_partial_file(tmp_path, capsys) -> None:
     assert capsys.readouterr().out == 'rec_0.mcap: recovered, 2001 messages\n'
     with AnyReader([bag]) as reader:
         assert [bytes(r) for _, _, r in reader.messages()] == messages[:2001]
+
+
+def test_recover_sets_aside_empty_and_unreadable_split_files_and_keeps_the_rest(
+        tmp_path, capsys) -> None:
+    """A recording split every second whose recorder was killed just after opening a new file
+    (0 bytes), with one finished file overwritten by garbage and one cut inside its header:
+    recover names and counts the three, sets them aside and keeps every message of the others
+    (before, the 0-byte file refused the whole recording: "not an MCAP file")."""
+    stamps, _, messages = imu_messages(5000)
+    bag = tmp_path / 'rec'
+    record(bag, messages, stamps, compress=True, split_s=1.0).close()
+    files = sorted(bag.glob('rec_*.mcap'), key=lambda f: int(f.stem.split('_')[1]))
+    assert len(files) == 5
+    kept = {}  # the messages of each file
+    for f in files:
+        with AnyReader([f]) as reader:
+            kept[f.name] = [bytes(r) for _, _, r in reader.messages()]
+    (bag / 'metadata.yaml').unlink()  # as killed: not written yet
+    (bag / 'rec_5.mcap').write_bytes(b'')  # the split the kill cut at once
+    files[1].write_bytes(b'\x00garbage' * 100)
+    files[3].write_bytes(files[3].read_bytes()[:20])  # magic and a cut header record
+    assert main(['recover', str(bag)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].startswith('rec_1.mcap: unreadable (not an MCAP file); set aside')
+    assert out[3] == 'rec_3.mcap: empty, 12 bytes after the cut; set aside as rec_3.mcap.orig'
+    assert out[5] == 'rec_5.mcap: empty; set aside as rec_5.mcap.orig'
+    assert out[-1] == ('3 of 6 files skipped (empty or unreadable): rec_1.mcap, rec_3.mcap, '
+                       'rec_5.mcap; the other files are readable')
+    with AnyReader([bag]) as reader:
+        got = [bytes(r) for _, _, r in reader.messages()]
+    assert got == kept['rec_0.mcap'] + kept['rec_2.mcap'] + kept['rec_4.mcap']
+    assert len(got) > 2500
+    assert read_imu(bag).stamps_ns.size == len(got)  # our reader opens it too

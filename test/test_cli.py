@@ -256,3 +256,36 @@ def test_output_cut_by_a_pipe_ends_quietly(tmp_path: Path) -> None:
     finally:
         os.close(write)
     assert proc.returncode == 141 and b'Traceback' not in proc.stderr, proc.stderr
+
+
+def test_bode_of_a_coach_file_prints_its_modes_delays_and_nulls(tmp_path: Path) -> None:
+    from railgsa_ros.models import load_model
+
+    coach_file = Path(__file__).resolve().parents[1] / 'config' / 'vehicles' / 'coach.yaml'
+    result = railgsa('bode', '--vehicle', str(coach_file), '--speed', '25',
+                     '--out', str(tmp_path / 'coach.png'))
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / 'coach.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    coach = load_model(coach_file)
+    rows = re.findall(r'^([a-z][a-z -]+(?:, [a-z0-9, ]+)?)\s+([\d.]+)\s+([\d.]+)$',
+                      result.stdout, re.MULTILINE)
+    np.testing.assert_allclose([float(r[1]) for r in rows], [m.f_hz for m in coach.modes()],
+                               atol=1e-3)
+    assert [r[0].strip() for r in rows[:2]] == ['car-body bounce', 'car-body pitch']
+    assert '(delays at 25 m/s [s]: 0, 0.1024, 0.76, 0.8624)' in result.stdout
+    # a bogie's wheelsets cancel at 2a/(2n+1), a = 2.56 m; the pitch rate also at L/n, L = 19 m
+    assert 'nulls of accel_z [m]: 5.12, 1.71, 1.02\n' in result.stdout
+    assert 'nulls of pitch_rate [m]: 19, 9.5, 6.33, 5.12, 4.75,' in result.stdout
+    bad = railgsa('bode', '--vehicle', str(coach_file), '--speed', '0',
+                  '--out', str(tmp_path / 'x.png'))
+    assert bad.returncode == 2 and '--speed: must be a positive number' in bad.stderr
+
+
+def test_simulate_a_coach_file_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    coach = Path(__file__).resolve().parents[1] / 'config' / 'vehicles' / 'coach.yaml'
+    assert main(['simulate', '--vehicle', str(coach), '--sensor', 'bmi088', '--duration', '1',
+                 '--out', str(tmp_path / 'bag')]) == 0
+    out = capsys.readouterr().out
+    assert '/imu/data' in out and 'truth chainage 21.6-' in out  # every wheelset on the track
+    stream = read_imu(tmp_path / 'bag')
+    assert stream.accel.shape == (400, 3)

@@ -274,12 +274,12 @@ def test_a_defect_growing_past_the_threshold_is_not_new(ingested, series, tmp_pa
     import shutil
 
     from railgsa_ros.fleet.condition import update_line
-    from railgsa_ros.review.limits import en13848_limits
+    from railgsa_ros.standards.en13848 import Limits, en13848_table
 
     _, path, _ = ingested
     copy = shutil.copy(path, tmp_path / 'copy.duckdb')
     con = db.connect(copy)
-    update_line(con, 'L1', '1', 0.25, en13848_limits('d1'), None, fraction=0.7)
+    update_line(con, 'L1', '1', 0.25, Limits(en13848_table(), 'd1'), None, fraction=0.7)
     rows = con.execute('SELECT new, passes, first_seen FROM defects WHERE abs(x_m - ?) < 3',
                        [_frame(series.truth_x['grow'])]).fetchall()
     con.close()

@@ -14,7 +14,7 @@ import pytest
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.condition import DAY_NS, update_line
 from railgsa_ros.fleet.fuse import fuse_line, pass_noise, pass_scatter
-from railgsa_ros.review.limits import en13848_limits
+from railgsa_ros.standards.en13848 import Limits, en13848_table
 
 CELLS = 4000  # 1 km at 0.25 m
 
@@ -95,7 +95,7 @@ def test_a_defect_is_detected_at_the_line_speed_class(tmp_path):
     x = np.arange(CELLS) * 0.25
     f = 0.2e-3 * np.sin(2 * np.pi * x / 17.0) - 5e-3 * np.exp(-0.5 * ((x - 500.0) / 1.5) ** 2)
     con, _ = _line(tmp_path, [1e-5, 1e-5], [-0.22, -0.08], speeds=[30.0, 18.0], f=f)
-    update_line(con, 'L', '1', 0.25, en13848_limits('d1'))
+    update_line(con, 'L', '1', 0.25, Limits(en13848_table(), 'd1'))
     rows = con.execute('SELECT x_m, passes, sign FROM defects').fetchall()
     assert len(rows) == 1
     x_m, passes, sign = rows[0]

@@ -26,8 +26,8 @@ from railgsa_ros.fleet import db
 from railgsa_ros.fleet.fuse import PRIOR_SIGMA_M
 from railgsa_ros.geo import geodetic_to_enu
 from railgsa_ros.inverse.score import band_distance
-from railgsa_ros.review.sections import SECTION_M
 from railgsa_ros.review.truth import load_truth
+from railgsa_ros.standards.sections import SECTION_M
 
 README = Path(__file__).resolve().parents[1] / 'README.md'
 SHORT = ['--section-km', '0.3-1.6', '--rate', '200']  # appended: argparse keeps the last value

@@ -17,6 +17,8 @@ from railgsa_ros.imu import (
     MemsStream,
     accel_covariance,
     dropout_mask,
+    gyro_chain,
+    gyro_covariance,
     imu_spec,
     load_imu,
     measure,
@@ -171,6 +173,10 @@ def test_effects_are_seeded_and_independent():
     ({'gravity': 'abc'}, 'gravity'),
     ({'gravity': float('nan')}, 'gravity'),
     ({'loudness': 3}, 'loudness'),
+    ({'gyro': 'yes'}, 'gyro'),
+    ({'gyro_noise_density': -1e-4}, 'gyro_noise_density'),
+    ({'gyro_range': 0.0}, 'gyro_range'),
+    ({'gyro_bias': float('inf')}, 'gyro_bias'),
     ({'chip_cutoff_hz': 500.0}, 'chip_cutoff_hz'),  # not below the 1 kHz ODR's Nyquist
     ({'chip_order': 2.5}, 'chip_order'),
 ])
@@ -231,3 +237,20 @@ def test_load_imu(tmp_path):
     bad.write_text('sensor: {}\n')
     with pytest.raises(ConfigError, match=r'imu\.yaml'):
         load_imu(bad)
+
+
+def test_gyro_noise_bias_and_quantisation_follow_its_own_fields():
+    spec = imu_spec('bmi088', gyro_bias_rw=0.0)
+    fs = 4 * spec.output_rate_hz
+    n = round(20.0 * fs)
+    rate = np.column_stack([np.zeros(n), np.full(n, 0.01), np.zeros(n)])  # 0.01 rad/s pitch
+    out = MemsStream(gyro_chain(spec), fs, seed=2).process(rate, final=True).accel
+    # no gravity; the datasheet-like zero-rate offset on every axis, the rate through the
+    # scale factor; white noise at the variance the messages state; values on the LSB grid
+    expected = np.array([0.0, 0.01 * (1 + spec.scale_factor), 0.0]) + spec.gyro_bias
+    tol = 5 * np.sqrt(gyro_covariance(spec) / out.shape[0] * 50)  # correlated by the filter
+    np.testing.assert_allclose(out.mean(axis=0), expected, atol=tol)
+    assert out[:, 0].var() == pytest.approx(gyro_covariance(spec), rel=0.1)
+    np.testing.assert_allclose(out / spec.gyro_lsb, np.rint(out / spec.gyro_lsb), atol=1e-6)
+    assert gyro_covariance(imu_spec('adxl355')) == -1.0  # no gyro: absent (REP 145)
+    assert gyro_covariance(imu_spec('ideal')) == 0.0 and imu_spec('ideal').gyro

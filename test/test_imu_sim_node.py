@@ -166,3 +166,35 @@ def test_bad_parameter_exits_2_with_one_line(ros_domain: int,
     assert err.startswith('error: ') and 'swiss-9' in err and err.count('\n') == 1
     assert main(['imu_sim_node', '--ros-args', '-p', 'rate_hz:=0.5']) == 2
     assert 'rate_hz' in capsys.readouterr().err
+
+
+def test_a_coach_file_publishes_its_pitch_rate_and_further_imus_live(
+        ros_context, spin, wait_for, tmp_path) -> None:
+    from sensor_msgs.msg import Imu
+
+    from railgsa_ros.nodes.qos import sensor_qos
+
+    coach = tmp_path / 'coach.yaml'
+    coach.write_text((REPO / 'config' / 'vehicles' / 'coach.yaml').read_text().replace(
+        '    x_m: 9.5 ', '    x_m: 9.5\n  - {name: centre, x_m: 0.0} '))
+    rec = Recorder(ros_context)
+    centre = Collector(rec.node, Imu, 'imu/centre/data', sensor_qos())
+    spin(rec.node)
+    node = spin(sim_node(ros_context, vehicle_file=str(coach), sensor='bmi088', rate_hz=400.0,
+                         duration_s=1.0))
+    offline = run_scenario(RUN['profile'], RUN['speed_mps'], 1.0, 400.0, 'bmi088', RUN['seed'],
+                           defects=RUN['defects'], vehicle=str(coach))
+    n = offline.stamps_ns.size
+    assert wait_for(lambda: node.published == n and rec.count('imu') >= n - 2
+                    and len(centre.snapshot()) >= n - 2, 10.0)
+    index = {int(s): k for k, s in enumerate(offline.stamps_ns + node.offset_ns)}
+    for _, msg in rec.got['imu'].snapshot():
+        k = index[stamp_ns(msg.header)]
+        omega = msg.angular_velocity
+        assert (omega.x, omega.y, omega.z) == tuple(offline.gyro[k])
+        assert msg.angular_velocity_covariance[0] == offline.gyro_covariance > 0
+    for msg in centre.snapshot():
+        k = index[stamp_ns(msg.header)]
+        acc = msg.linear_acceleration
+        assert (acc.x, acc.y, acc.z) == tuple(offline.imu_accel[k, 0])
+        assert msg.header.frame_id == 'imu_link_centre'

@@ -1,8 +1,9 @@
 """The package's layering, checked on its import graph (ast of every module, lazy imports too).
 
 `uq/` is a generic library at the bottom (it imports nothing of the package but `errors`), only
-`nodes/` imports rclpy, and no two modules of the package import each other, directly or
-through others.
+`nodes/` imports rclpy, `fleet/` never imports `review/` and `standards/` imports neither (the
+EN 13848 limits both apply live in `standards/`), and no two modules of the package import each
+other, directly or through others.
 """
 
 from __future__ import annotations
@@ -93,6 +94,31 @@ def test_only_nodes_import_rclpy() -> None:
                    if not name.startswith('railgsa_ros.nodes')
                    and any(target.split('.')[0] == 'rclpy' for target in targets))
     assert not wrong
+
+
+def _imports_of(graph: dict[str, set[str]], section: str, forbidden: tuple[str, ...]
+                ) -> dict[str, list[str]]:
+    """Modules of ``section`` (a subpackage) that import a module of a ``forbidden`` one."""
+    wrong = {name: sorted(t for t in targets
+                          if any(t == f'railgsa_ros.{f}' or t.startswith(f'railgsa_ros.{f}.')
+                                 for f in forbidden))
+             for name, targets in graph.items() if name.startswith(f'railgsa_ros.{section}')}
+    return {name: targets for name, targets in wrong.items() if targets}
+
+
+def test_the_import_rule_finder_sees_a_forbidden_import() -> None:
+    graph = {'railgsa_ros.fleet.a': {'railgsa_ros.review.limits', 'numpy'},
+             'railgsa_ros.fleet.b': {'railgsa_ros.reviewer'}}
+    assert _imports_of(graph, 'fleet', ('review',)) == {
+        'railgsa_ros.fleet.a': ['railgsa_ros.review.limits']}
+
+
+def test_fleet_never_imports_the_review() -> None:
+    assert _imports_of(import_graph(), 'fleet', ('review',)) == {}
+
+
+def test_standards_import_neither_the_review_nor_the_fleet() -> None:
+    assert _imports_of(import_graph(), 'standards', ('review', 'fleet', 'nodes')) == {}
 
 
 def test_no_import_cycle_between_package_modules() -> None:

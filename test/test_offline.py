@@ -24,12 +24,12 @@ from railgsa_ros.offline import Source
 from railgsa_ros.qos import record_qos
 from railgsa_ros.review.build import build_review
 from railgsa_ros.review.exceedances import find_exceedances
-from railgsa_ros.review.grid import DX_M
-from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.results import ReviewOptions
-from railgsa_ros.review.sections import section_sd
 from railgsa_ros.review.stream import run_stream
 from railgsa_ros.scenario import run_scenario
+from railgsa_ros.standards.en13848 import Limits, en13848_table
+from railgsa_ros.standards.sampling import DX_M
+from railgsa_ros.standards.sections import section_sd
 from railgsa_ros.uncertainty import UncertaintyConfig
 from railgsa_ros.uncertainty.parameters import table3
 
@@ -102,7 +102,7 @@ def _whole_run(bag: Path, config: UncertaintyConfig) -> tuple[Output, np.ndarray
 
 def test_streamed_review_equals_the_whole_array_results(simulated) -> None:
     bag, _ = simulated
-    limits = en13848_limits()
+    limits = Limits(en13848_table(), 'd1')
     config = UncertaintyConfig().with_(inversion=UncertaintyConfig().inversion.with_(
         rate_hz=1000.0))
     runs = [run_stream(Source(bag), config, None, None, limits, rate_from_bag=False,
@@ -122,7 +122,7 @@ def test_streamed_review_equals_the_whole_array_results(simulated) -> None:
         assert run.last[1] == pytest.approx(every.chainage_m[-1], rel=1e-12)
         k = int(np.argmax(np.abs(out.u_m)))
         assert (run.peak.stamp_ns, run.peak.value_m) == (out.stamps_ns[k], out.u_m[k])
-        from railgsa_ros.review.sections import grid_sections
+        from railgsa_ros.standards.sections import grid_sections
 
         g = run.grid
         sections = grid_sections(g.x_m, g.u_m, g.valid, run.section_speeds)

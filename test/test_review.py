@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railgsa_ros.errors import ConfigError
 from railgsa_ros.review.exceedances import (
     count_by_level,
     describe_counts,
@@ -18,43 +17,15 @@ from railgsa_ros.review.exceedances import (
 )
 from railgsa_ros.review.figures import envelope
 from railgsa_ros.review.health import stamp_stats
-from railgsa_ros.review.limits import en13848_limits, speed_class
 from railgsa_ros.review.progress import Progress
-from railgsa_ros.review.sections import section_sd
 from railgsa_ros.review.truth import Truth
+from railgsa_ros.standards.en13848 import Limits, en13848_table
+from railgsa_ros.standards.sections import section_sd
 from railgsa_ros.track import cosine_dip
 
 KMH = 1 / 3.6
 MM = 1e-3
-
-
-def test_speed_classes_include_their_upper_bound() -> None:
-    kmh = np.array([0, 80, 80.01, 120, 121, 160, 200, 230, 231, 300, 300.5, np.nan])
-    assert speed_class(kmh * KMH).tolist() == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, -1, -1]
-    assert speed_class(np.array([-100 * KMH])).tolist() == [1]  # reversing: same class
-
-
-@pytest.mark.parametrize(('end', 'expected_mm'), [('lower', (8, 10, 26)), ('upper', (12, 17, 26))])
-def test_d1_limits_at_100_kmh_take_the_chosen_end_of_the_ranges(end: str,
-                                                                expected_mm: tuple) -> None:
-    lim = en13848_limits('d1', end)
-    assert lim.at(np.array([100 * KMH])) == pytest.approx(np.array([expected_mm]) * MM)
-    assert lim.sd_at(np.array([100 * KMH])) == pytest.approx(np.array([[1.8, 2.7]]) * MM)
-    assert np.all(np.isnan(lim.at(np.array([320 * KMH]))))
-    # every class: AL < IL < IAL, and the limits tighten with speed
-    table = lim.isolated_m
-    assert np.all(np.diff(table, axis=1) > 0) and np.all(np.diff(table, axis=0) < 0)
-
-
-def test_d2_has_only_an_immediate_action_limit_above_160_kmh() -> None:
-    lim = en13848_limits('d2')
-    thresholds = lim.at(np.array([100, 200, 250]) * KMH)
-    assert np.all(np.isnan(thresholds[:, :2]))
-    assert np.isnan(thresholds[0, 2]) and thresholds[1:, 2] == pytest.approx([33 * MM, 28 * MM])
-    with pytest.raises(ConfigError, match='limit end'):
-        en13848_limits('d1', 'middle')
-    with pytest.raises(ConfigError, match='band'):
-        en13848_limits('d3')
+D1 = Limits(en13848_table(), 'd1')  # the standard's table, classed by the measuring speed
 
 
 def _track(dips: list[tuple[float, float]], speed_kmh: float | np.ndarray
@@ -68,7 +39,7 @@ def _track(dips: list[tuple[float, float]], speed_kmh: float | np.ndarray
 def test_dips_are_found_at_their_chainage_with_their_level() -> None:
     # 100 km/h, lower end: AL 8, IL 10, IAL 26 mm
     x, u, v, t = _track([(100, 9 * MM), (300, 12 * MM), (500, 30 * MM), (700, 7 * MM)], 100)
-    found = find_exceedances(x, u, v, t, en13848_limits())
+    found = find_exceedances(x, u, v, t, D1)
     assert [(e.level, e.confidence) for e in found] == [('AL', 'certain'), ('IL', 'certain'),
                                                         ('IAL', 'certain')]
     assert [e.peak_m for e in found] == pytest.approx([102, 302, 502], abs=0.05)
@@ -85,7 +56,7 @@ def test_dips_are_found_at_their_chainage_with_their_level() -> None:
 def test_the_speed_class_sets_the_limit() -> None:
     speed = np.where(np.arange(20000) < 10000, 100.0, 150.0)  # 0-500 m: 100, then 150 km/h
     x, u, v, t = _track([(100, 7 * MM), (700, 7 * MM)], speed)
-    found = find_exceedances(x, u, v, t, en13848_limits())  # AL 8 mm, then 6 mm
+    found = find_exceedances(x, u, v, t, D1)  # AL 8 mm, then 6 mm
     assert len(found) == 1 and found[0].peak_m == pytest.approx(702, abs=0.05)
     assert found[0].speed_kmh == pytest.approx(150)
 
@@ -93,7 +64,7 @@ def test_the_speed_class_sets_the_limit() -> None:
 def test_the_band_sets_the_confidence() -> None:
     x, u, v, t = _track([(100, 12 * MM), (300, 15 * MM), (500, 7 * MM), (700, 11 * MM)], 100)
     half = np.where(x < 600, 2 * MM, 0.5 * MM) * (u != 0)
-    found = find_exceedances(x, u, v, t, en13848_limits(), u - half, u + half)
+    found = find_exceedances(x, u, v, t, D1, u - half, u + half)
     got = [(round(e.peak_m), e.level, e.confidence) for e in found]
     # 12 +- 2: central IL, nearest edge 10 is not above IL 10 -> likely; 15 +- 2: certain IL;
     # 7 +- 2: only the far edge 9 passes AL -> possible; 11 +- 0.5: certain IL
@@ -110,7 +81,7 @@ def test_noise_at_the_limit_makes_one_exceedance_per_side() -> None:
     rng = np.random.default_rng(0)
     u = u + 0.3 * MM * rng.standard_normal(u.size) * (u != 0)  # dithers across AL = 8 mm
     u[(x > 110) & (x < 112)] = 8.5 * MM  # a positive bump next to it: another exceedance
-    found = find_exceedances(x, u, v, t, en13848_limits(), merge_m=1.0)
+    found = find_exceedances(x, u, v, t, D1, merge_m=1.0)
     assert [np.sign(e.peak_u_m) for e in found] == [-1, 1]
     assert found[0].peak_m == pytest.approx(102, abs=0.3)
     assert 110 < found[1].peak_m < 112 and 110 < found[1].start_m < found[1].end_m < 112

@@ -16,10 +16,10 @@ from railgsa_ros.bag import read_imu, write_run
 from railgsa_ros.cli.main import main
 from railgsa_ros.inverse.score import band_distance
 from railgsa_ros.review.build import build_review, write_review
-from railgsa_ros.review.grid import GridBuilder
 from railgsa_ros.review.outputs import summary
 from railgsa_ros.review.results import ReviewOptions
 from railgsa_ros.scenario import run_scenario
+from railgsa_ros.standards.sampling import GridBuilder
 from railgsa_ros.track import save_csv
 from railgsa_ros.uncertainty import UncertaintyConfig, offline_bands
 from railgsa_ros.uncertainty.parameters import table3
@@ -128,8 +128,8 @@ def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
     last bit); its widest band is the widest of the samples around the grid's cells."""
     from railgsa_ros.offline import Source
     from railgsa_ros.review import band as kept
-    from railgsa_ros.review.limits import en13848_limits
     from railgsa_ros.review.stream import run_stream
+    from railgsa_ros.standards.en13848 import Limits, en13848_table
 
     def everywhere(self, chainage_m, u_m, speed_mps, mean_m, bank_u_m, sensor_std_m):
         lower, _, upper = kept.band_statistics(self.design, self.quantiles, bank_u_m,
@@ -139,7 +139,7 @@ def test_the_kept_band_equals_the_band_at_every_sample(simulated, review,
     monkeypatch.setattr(kept.KeptBand, 'take', everywhere)
     bag, _ = simulated
     full, _ = run_stream(Source(bag), CHEAP, review.options.vehicle, table3(),
-                         en13848_limits())
+                         Limits(en13848_table(), 'd1'))
     run = review.run
     assert np.array_equal(run.grid.u_m, full.grid.u_m, equal_nan=True)
     for name in ('lower_m', 'upper_m'):
@@ -173,7 +173,9 @@ def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: 
     assert all(counts.values())  # the three dips: one of each level at least
     for level, count in counts.items():
         assert re.search(f'<span class={level}>{level}</span> {count} \\(', html)
-    assert '[M]' in html and 'lower</b> end' in html
+    # the table and the basis of every class are named (no --line-speed: the measuring speed)
+    assert '[M]' in html and '<b>EN 13848-5, lower end of the AL/IL ranges</b>' in html
+    assert '<b>class by measuring speed (no --line-speed given)</b>' in html
     assert not list(tmp_path.glob('.out*'))  # no temporary left behind
     # the input policy's findings: the mounting tilt of the upright sensor (report and --json)
     mounting = summary(review, report)['findings']['mounting']
@@ -215,7 +217,8 @@ def test_cli_writes_the_report_and_draws_progress_only_when_asked(simulated, tmp
     assert str(out / 'report.html') in stdout and 'x real time' in stdout
     assert stderr == ''
     html = (out / 'report.html').read_text(encoding='utf-8')
-    assert 'upper</b> end' in html and 'histogram.png' not in html and 'truth.png' in html
+    assert '<b>EN 13848-5, upper end of the AL/IL ranges</b>' in html
+    assert 'histogram.png' not in html and 'truth.png' in html
     assert main(['review', str(bag), '--out', str(out), '--no-uncertainty']) == 2
     assert 'already exists' in capsys.readouterr().err
     assert main(['review', str(bag), '--out', str(out), '--no-uncertainty', '--overwrite',
@@ -293,15 +296,15 @@ def test_without_odometry_the_speed_is_unknown_and_refused(tmp_path: Path) -> No
     a fixed speed must be asked for (run_stream's speed_mps)."""
     from railgsa_ros.errors import InputError
     from railgsa_ros.offline import Source
-    from railgsa_ros.review.limits import en13848_limits
     from railgsa_ros.review.stream import run_stream
+    from railgsa_ros.standards.en13848 import Limits, en13848_table
 
     run = run_scenario('german-low', 25.0, 12.0, 1000.0, 'ideal', 4)
     bag = _bag_with(tmp_path / 'imu_only', run, ('imu',))
     with pytest.raises(InputError, match='no odometry'):
         build_review(ReviewOptions(bag, UncertaintyConfig()))
-    fixed, _ = run_stream(Source(bag), UncertaintyConfig(), None, None, en13848_limits(),
-                          speed_mps=25.0)
+    fixed, _ = run_stream(Source(bag), UncertaintyConfig(), None, None,
+                          Limits(en13848_table(), 'd1'), speed_mps=25.0)
     grid = fixed.grid
     assert np.all(grid.speed_mps[grid.valid] == 25.0)
     assert fixed.last[1] == pytest.approx(run.chainage_m[-1] - run.chainage_m[0], abs=0.1)

@@ -19,6 +19,10 @@ import numpy as np
 
 _CDR_LE = b'\x00\x01\x00\x00'
 _NS = 1_000_000_000
+#: longest string (bytes with its NUL) a message may carry: frame ids are a few dozen bytes; a
+#: longer one is malformed (a 50,000-character frame_id made every row of a numpy string column
+#: 200 kB wide: 6 GB for one bag)
+MAX_STRING = 256
 #: ``decode`` reads at most this many messages one by one (struct, ~3 us each) instead of
 #: vectorised (~20-40 us of numpy calls however few): a node decodes batches of 1-2 messages
 FEW = 4
@@ -60,6 +64,18 @@ def _align(offset: np.ndarray, size: int) -> np.ndarray: ...
 def _align(offset: np.ndarray | int, size: int) -> np.ndarray | int:
     """Round an offset (one, or one per message) up to a multiple of ``size`` bytes."""
     return (offset + size - 1) // size * size
+
+
+def within_cap(strings: Sequence[str]) -> bool:
+    """Whether every string, UTF-8 with its NUL, fits MAX_STRING bytes (for what another
+    deserialiser read)."""
+    return all(len(text.encode('utf-8')) < MAX_STRING for text in strings)
+
+
+def max_length(layout: StampedLayout) -> int:
+    """Bytes of the longest message of ``layout`` whose strings are within MAX_STRING (the
+    strings' alignment and the body's included): a longer one has a string over the cap."""
+    return 4 + 8 + layout.n_strings * (3 + 4 + MAX_STRING) + 7 + 8 * layout.n_doubles
 
 
 def split_stamps(stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +144,8 @@ def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def well_formed(layout: StampedLayout, data: bytes) -> bool:
     """Whether one message has the structure ``decode_block`` needs (XCDR1 encapsulation, every
-    string in bounds and NUL-terminated, the float64 body complete): a cheap per-message check
+    string in bounds, at most MAX_STRING bytes and NUL-terminated, the float64 body complete):
+    a cheap per-message check
     (about 1 us) for the replay, which forwards bytes without decoding them."""
     if len(data) < 16 or data[0] != 0 or data[1] > 1:
         return False
@@ -139,7 +156,8 @@ def well_formed(layout: StampedLayout, data: bytes) -> bool:
         if 4 + offset + 4 > len(data):
             return False
         count = int.from_bytes(data[4 + offset:8 + offset], 'little' if end == '<' else 'big')
-        if count < 1 or 8 + offset + count > len(data) or data[7 + offset + count] != 0:
+        if not 1 <= count <= MAX_STRING or 8 + offset + count > len(data) or \
+                data[7 + offset + count] != 0:
             return False
         offset += 4 + count
     return _align(offset, 8) + 4 + 8 * layout.n_doubles <= len(data)
@@ -150,6 +168,8 @@ def decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
     n, length = block.shape
     if length < 16 or np.any(block[:, 0] != 0) or np.any(block[:, 1] > 1):
         raise ValueError('not plain CDR (XCDR1) data')
+    if length > max_length(layout):
+        raise ValueError(f'a string longer than {MAX_STRING} bytes')
     uniform = _decode_uniform(layout, block)
     if uniform is not None:
         return uniform
@@ -167,6 +187,8 @@ def decode_block(layout: StampedLayout, block: np.ndarray) -> Decoded:
     offset = _align(offset, 8)
     if np.any(offset + 4 + 8 * layout.n_doubles > length) or any(np.any(c < 1) for c in str_len):
         raise ValueError('truncated message')
+    if any(np.any(c > MAX_STRING) for c in str_len):
+        raise ValueError(f'a string longer than {MAX_STRING} bytes')
     key = np.stack([little.astype(np.int64), offset, *str_len], axis=1)
     groups, inverse = _unique_rows(key)
     pieces = []
@@ -200,7 +222,7 @@ def _decode_uniform(layout: StampedLayout, block: np.ndarray) -> Decoded | None:
         if 4 + offset + 4 > length:
             return None
         count = int.from_bytes(first[4 + offset:8 + offset], order)
-        if count < 1:
+        if not 1 <= count <= MAX_STRING:
             return None
         spans.append((4 + offset, 8 + offset + count))  # length field .. NUL
         offset += 4 + count
@@ -256,6 +278,8 @@ def _decode_one(layout: StampedLayout, data: bytes) -> tuple[int, int, list[str]
         count = struct.unpack_from(end + 'I', data, 4 + offset)[0]
         if count < 1:
             raise ValueError('truncated message')
+        if count > MAX_STRING:
+            raise ValueError(f'a string longer than {MAX_STRING} bytes')
         strings.append(data[8 + offset:7 + offset + count].decode('utf-8', 'replace'))
         offset += 4 + count
     body = 4 + _align(offset, 8)
@@ -275,7 +299,8 @@ def _decode_few(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> De
 
 
 def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded:
-    """Decode N serialised messages of ``layout``; ValueError if any is not plain CDR."""
+    """Decode N serialised messages of ``layout``; ValueError if any is not plain CDR or has a
+    string over MAX_STRING."""
     if not raws:
         empty = tuple(np.zeros(0, dtype=str) for _ in range(layout.n_strings))
         return Decoded(np.zeros(0, dtype=np.int64), empty, np.zeros((0, layout.n_doubles)),
@@ -283,6 +308,8 @@ def decode(layout: StampedLayout, raws: Sequence[bytes | memoryview]) -> Decoded
     if len(raws) <= FEW:
         return _decode_few(layout, raws)
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
+    if lengths.max() > max_length(layout):
+        raise ValueError(f'a string longer than {MAX_STRING} bytes')
     if np.all(lengths == lengths[0]):
         block = np.frombuffer(b''.join(raws), np.uint8)
         return decode_block(layout, block.reshape(len(raws), int(lengths[0])))
@@ -302,8 +329,8 @@ def decode_valid(layout: StampedLayout, raws: Sequence[bytes],
                  fallback: Fallback | None = None) -> tuple[Decoded, np.ndarray]:
     """Decode what can be read of N messages, never raising: the plain CDR ones vectorised,
     the others through ``fallback`` (e.g. a general deserialiser for other encodings); those
-    neither reads (truncated, garbage) are left out. Returns the decoded messages and their
-    indices into ``raws`` (increasing)."""
+    neither reads (truncated, garbage) and those with a string over MAX_STRING are left out.
+    Returns the decoded messages and their indices into ``raws`` (increasing)."""
     try:
         return decode(layout, raws), np.arange(len(raws))
     except ValueError:
@@ -312,11 +339,16 @@ def decode_valid(layout: StampedLayout, raws: Sequence[bytes],
     fast = decode(layout, [raws[i] for i in np.flatnonzero(plain).tolist()])
     read = fallback if fallback is not None else _unreadable
     rows = []
+    longest = max_length(layout)
     for i in np.flatnonzero(~plain).tolist():
+        if len(raws[i]) > longest:  # a string over the cap, whatever the encoding
+            continue
         try:
-            rows.append((i, *read(raws[i])))
+            row = read(raws[i])
         except Exception:  # whatever a deserialiser raises on bad bytes
             continue
+        if within_cap(row[2]):
+            rows.append((i, *row))
     if not rows:
         return fast, np.flatnonzero(plain)
     keep = np.concatenate([np.flatnonzero(plain), [r[0] for r in rows]]).astype(np.int64)

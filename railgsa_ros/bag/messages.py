@@ -1,9 +1,9 @@
 """Standard ROS 2 messages as arrays: layouts, REP 145 conventions and the Jazzy typestore.
 
 Sign and frame conventions (REP 103/145): ``imu_link`` z up, specific force including gravity in
-m/s^2; no orientation or gyro data -> orientation (0, 0, 0, 1) and covariance[0] = -1 for those
-fields; the accelerometer covariance diagonal is the sensor variance ((m/s^2)^2), all zeros when
-unknown.
+m/s^2; no orientation (or no gyro) -> orientation (0, 0, 0, 1) and covariance[0] = -1 for those
+fields; angular velocity in rad/s about the body axes (y: pitch, positive nose down); the
+accelerometer covariance diagonal is the sensor variance ((m/s^2)^2), all zeros when unknown.
 """
 
 from __future__ import annotations
@@ -41,17 +41,24 @@ def typestore() -> Any:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def imu_values(accel: np.ndarray, accel_variance: float) -> np.ndarray:
-    """Imu float64 bodies (T, 37) for an accelerometer-only sensor (REP 145 sentinels set).
+def imu_values(accel: np.ndarray, accel_variance: float, gyro: np.ndarray | None = None,
+               gyro_variance: float = 0.0) -> np.ndarray:
+    """Imu float64 bodies (T, 37) with REP 145 sentinels for what the sensor lacks.
 
     accel: (T, 3) specific force in m/s^2; accel_variance: per-axis variance in (m/s^2)^2, 0 when
-    unknown.
+    unknown; gyro: (T, 3) angular velocity in rad/s (REP 103 body axes) with its per-axis
+    variance in (rad/s)^2, or None for a sensor without a gyro (covariance[0] = -1).
     """
     accel = np.asarray(accel, dtype=float)
     values = np.zeros((accel.shape[0], IMU.n_doubles))
     values[:, IMU_FIELDS['orientation']] = (0.0, 0.0, 0.0, 1.0)
     values[:, IMU_FIELDS['orientation_covariance'].start] = -1.0
-    values[:, IMU_FIELDS['angular_velocity_covariance'].start] = -1.0
+    if gyro is None:
+        values[:, IMU_FIELDS['angular_velocity_covariance'].start] = -1.0
+    else:
+        values[:, IMU_FIELDS['angular_velocity']] = gyro
+        values[:, IMU_FIELDS['angular_velocity_covariance']] = \
+            np.diag(np.full(3, float(gyro_variance))).ravel()
     values[:, IMU_FIELDS['linear_acceleration']] = accel
     values[:, IMU_FIELDS['linear_acceleration_covariance']] = \
         np.diag(np.full(3, float(accel_variance))).ravel()

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from io import BytesIO
 import os
 from pathlib import Path
+import sqlite3
 import struct
 from typing import Any
 import warnings
@@ -67,10 +68,12 @@ def storage_paths(path: str | Path) -> list[Path]:
         if path.suffix not in STORAGE_SUFFIXES:
             raise InputError(f'{path}: not a rosbag2 bag (expected a directory, .mcap or .db3)')
         _refuse_unfinished(path, [path])
+        _apply_wal(path, [path])
         return [path]
     if not path.is_dir():
         raise InputError(f'{path}: no such bag')
     _refuse_unfinished(path, path.glob('*.mcap'))
+    _apply_wal(path, path.glob('*.db3'))
     if (path / 'metadata.yaml').is_file():
         return [path]
     for suffix in STORAGE_SUFFIXES:
@@ -104,6 +107,33 @@ def _refuse_unfinished(bag: Path, files: Iterable[Path]) -> None:
             which = '' if file == bag else f'{file.name} is '
             raise InputError(f'{bag}: {which}unfinished (no MCAP footer: its recorder was '
                              f'killed?); run "railgsa recover {bag}" to make it readable')
+
+
+def _apply_wal(bag: Path, files: Iterable[Path]) -> None:
+    """Move the messages of each .db3's write-ahead log into it (SQLite's own checkpoint, what
+    any SQLite reader does on close); InputError naming ``bag`` when that cannot be done.
+
+    rosbag2's resilient storage preset writes in WAL mode: until a checkpoint the newest
+    messages are only in ``NAME.db3-wal``, and rosbags opens the .db3 as immutable, which
+    ignores the log (31,815 of 49,876 IMU samples read, no error)."""
+    for db3 in files:
+        wal = db3.with_name(db3.name + '-wal')
+        if db3.suffix != '.db3' or not wal.is_file() or wal.stat().st_size == 0:
+            continue
+        try:
+            con = sqlite3.connect(f'file:{db3}?mode=rw', uri=True, timeout=5.0)
+            try:
+                busy, _, _ = con.execute('PRAGMA wal_checkpoint(TRUNCATE)').fetchone()
+            finally:
+                con.close()
+        except sqlite3.Error as exc:
+            busy, reason = 1, _one_line(exc)
+        else:
+            reason = 'a reader or writer holds it'
+        if busy or (wal.is_file() and wal.stat().st_size):
+            raise InputError(f'{bag}: {wal.name} holds messages not yet in {db3.name} (written in '
+                             f'WAL mode) and they cannot be applied ({reason}); copy the bag to '
+                             'a writable directory and read it there')
 
 
 def _one_line(exc: BaseException) -> str:
@@ -361,8 +391,9 @@ def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
         if keep.size < log_times.size:
             bad = np.setdiff1d(np.arange(log_times.size), keep)
             warnings.warn(InputWarning(
-                f'{bad.size} malformed {msgtype} message(s) skipped (empty or truncated; first '
-                f'at log time {log_times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
+                f'{bad.size} malformed {msgtype} message(s) skipped (empty, truncated or a '
+                f'string over {cdr.MAX_STRING} bytes; first at log time '
+                f'{log_times[bad[0]] / 1e9:.6f} s)'), stacklevel=2)
         log_times = log_times[keep]
     return TopicData(log_times, dec.stamps_ns, dec.strings, dec.values)
 
@@ -370,17 +401,23 @@ def _decode_raws(reader: AnyReader, msgtype: str, times: list[int],
 def _decode_each(reader: AnyReader, msgtype: str,
                  raws: list[bytes]) -> tuple[cdr.Decoded, np.ndarray]:
     """Messages that are not all plain CDR: the well-formed plain ones vectorised, the others by
-    rosbags with the bag's own definitions; those neither can read (0-byte, truncated) are
-    left out. Returns the decoded messages and their indices into ``raws`` (in order)."""
+    rosbags with the bag's own definitions; those neither can read (0-byte, truncated) and
+    those with a string over ``cdr.MAX_STRING`` are left out. Returns the decoded messages
+    and their indices into ``raws`` (in order)."""
     layout = LAYOUTS[msgtype]
     plain = np.array([cdr.well_formed(layout, r) for r in raws], dtype=bool)
     keep, flat = list(np.flatnonzero(plain)), []
+    longest = cdr.max_length(layout)
     for i in np.flatnonzero(~plain):
+        if len(raws[i]) > longest:  # a string over cdr.MAX_STRING, whatever the encoding
+            continue
         try:
-            flat.append(flatten(reader.deserialize(raws[i], msgtype), msgtype))
-            keep.append(i)
+            row = flatten(reader.deserialize(raws[i], msgtype), msgtype)
         except Exception:  # rosbags raises SerdeError, struct.error, ...
             continue
+        if cdr.within_cap(row[1]):
+            flat.append(row)
+            keep.append(i)
     fast = cdr.decode(layout, [raws[i] for i in np.flatnonzero(plain)])
     stamps = np.concatenate([fast.stamps_ns, np.array([f[0] for f in flat], dtype=np.int64)])
     strings = tuple(np.concatenate([fast.strings[j], np.array([f[1][j] for f in flat],

@@ -40,14 +40,18 @@ def sample_indices(stamps_ns: np.ndarray, rate_hz: float) -> np.ndarray:
 class RunEncoder:
     """Serialises slices of a run as Imu, Odometry and PointStamped (truth) CDR messages.
 
-    ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance
-    diagonal; 0 = unknown; None = ``run.accel_covariance``). Imu frame: ``frame_id``, else
-    ``run.frame_id``, else imu_link. Odometry samples the run at ``odom_rate_hz`` with
-    pose.position.x = chainage at the start + odometer distance (m) and twist.twist.linear.x =
-    odometry speed (m/s): both the truth times ``run.odom_scale`` (a wheel-diameter error).
-    Truth: point.x = chainage (m), point.z = irregularity (m) at every IMU stamp, frame
-    ``track``. ``odom``: the TickSampler of a stream whose earlier chunks were encoded before
-    (with ``origin_m``, the stream's first chainage); None for a whole run.
+    A run with further IMUs (``run.imu_names``, a coach file's) has one more Imu stream each,
+    key ``imu:<name>``, frame ``<frame>_<name>``, at the primary's stamps.
+
+    ``accel_variance``: accelerometer variance per axis in (m/s^2)^2 (REP 145 covariance diagonal;
+    0 = unknown; None = ``run.accel_covariance``). Imu frame: ``frame_id``, else ``run.frame_id``,
+    else imu_link. Angular velocity: ``run.gyro`` (T, 3) rad/s with the variance
+    ``run.gyro_covariance`` when the run has one, else absent (REP 145). Odometry samples the run
+    at ``odom_rate_hz`` with pose.position.x = chainage at the start + odometer distance (m) and
+    twist.twist.linear.x = odometry speed (m/s): both the truth times ``run.odom_scale`` (a
+    wheel-diameter error). Truth: point.x = chainage (m), point.z = irregularity (m) at every IMU
+    stamp, frame ``track``. ``odom``: the TickSampler of a stream whose earlier chunks were encoded
+    before (with ``origin_m``, the stream's first chainage); None for a whole run.
     """
 
     def __init__(self, run: Any, accel_variance: float | None = None,
@@ -58,6 +62,9 @@ class RunEncoder:
         if accel_variance is None:
             accel_variance = getattr(run, 'accel_covariance', 0.0)
         self.accel_variance = float(accel_variance)
+        self.gyro = getattr(run, 'gyro', None)  # (T, 3) rad/s, None: no gyro
+        self.gyro_variance = float(getattr(run, 'gyro_covariance', 0.0))
+        self.imu_names = tuple(getattr(run, 'imu_names', ()))  # further IMUs: /imu/<name>/data
         self.odom_rate_hz = float(odom_rate_hz)
         self.stamps_ns = np.asarray(run.stamps_ns, dtype=np.int64)
         self.odom_index = (odom or TickSampler(odom_rate_hz)).take(self.stamps_ns)
@@ -94,20 +101,34 @@ class RunEncoder:
         if self.odom_scale != 1.0 and odometer.size:
             odometer = self.origin_m + self.odom_scale * (odometer - self.origin_m)
         odom_values = odometry_values(odometer, self.odom_scale * np.asarray(run.speed_mps)[odom])
+        gyro = None if self.gyro is None else self.gyro[start:stop]
+        extra = {f'imu:{name}': (stamps, self._imu_rows(
+            stamps, run.imu_accel[start:stop, k], f'{self.frame_id}_{name}',
+            None if run.imu_gyro is None else run.imu_gyro[start:stop, k]))
+            for k, name in enumerate(self.imu_names)}
         return {
-            'imu': (stamps, cdr.encode_rows(IMU, stamps, [self.frame_id],
-                                            imu_values(run.accel[start:stop],
-                                                       self.accel_variance))),
+            'imu': (stamps, self._imu_rows(stamps, run.accel[start:stop], self.frame_id, gyro)),
+            **extra,
             'odom': (odom_stamps, cdr.encode_rows(ODOMETRY, odom_stamps, ['odom', 'base_link'],
                                                   odom_values)),
             'truth': (stamps, cdr.encode_rows(POINT_STAMPED, stamps, ['track'], truth)),
         }
 
+    def _imu_rows(self, stamps: np.ndarray, accel: np.ndarray, frame_id: str,
+                  gyro: np.ndarray | None) -> np.ndarray:
+        """Imu messages (N, L) of one IMU: accelerometer and, when given, gyro values."""
+        return cdr.encode_rows(IMU, stamps, [frame_id], imu_values(
+            accel, self.accel_variance, gyro, self.gyro_variance))
+
     def topics(self) -> dict[str, tuple[str, str, Any]]:
-        """key -> (bag topic, message type, offered QoS): BEST_EFFORT for the IMU (sensor data,
-        depth for 1 s), RELIABLE for odometry and truth."""
+        """key -> (bag topic, message type, offered QoS): BEST_EFFORT for the IMUs (sensor data,
+        depth for 1 s; a further IMU <name> on /imu/<name>/data), RELIABLE for odometry and
+        truth."""
+        imu_qos = record_qos(False, history_depth(self.imu_rate_hz))
         return {
-            'imu': (IMU_TOPIC, IMU.msgtype, record_qos(False, history_depth(self.imu_rate_hz))),
+            'imu': (IMU_TOPIC, IMU.msgtype, imu_qos),
+            **{f'imu:{name}': (f'/imu/{name}/data', IMU.msgtype, imu_qos)
+               for name in self.imu_names},
             'odom': (ODOM_TOPIC, ODOMETRY.msgtype,
                      record_qos(True, history_depth(self.odom_rate_hz))),
             'truth': (TRUTH_TOPIC, POINT_STAMPED.msgtype,

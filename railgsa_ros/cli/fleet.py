@@ -12,7 +12,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from railgsa_ros.cli.review import add_location_options, add_topic_options
+from railgsa_ros.cli.review import add_location_options, add_standard_options, add_topic_options
 
 if TYPE_CHECKING:
     from railgsa_ros.fleet.ingest import Outcome
@@ -54,6 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ing.add_argument('--band', choices=('d1', 'd2'))
     add_topic_options(ing)
     add_location_options(ing)  # --line, --track, --direction, --km-origin, --gnss-topic
+    add_standard_options(ing)  # --limits, --line-speed
     ing.add_argument('--detect-fraction', type=float, metavar='F',
                      help='defects are followed from F x the alert limit of the speed class '
                           '(default 0.5; 0 < F <= 1)')
@@ -63,6 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     rep.add_argument('--db', required=True, metavar='PATH')
     rep.add_argument('--out', required=True, metavar='DIR', help='report directory to create')
     rep.add_argument('--overwrite', action='store_true', help='replace an existing DIR')
+    add_standard_options(rep)
     rep.set_defaults(func=run_report)
 
     qry = sub.add_parser('query', help='defects of a line between two km-posts')
@@ -71,6 +73,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     qry.add_argument('--track', help='only this track (default: all)')
     qry.add_argument('--from-km', type=float, required=True, metavar='A')
     qry.add_argument('--to-km', type=float, required=True, metavar='B')
+    add_standard_options(qry)
     fmt = qry.add_mutually_exclusive_group()
     fmt.add_argument('--json', dest='format', action='store_const', const='json',
                      help='JSON array (default)')
@@ -97,11 +100,12 @@ def pass_options(args: argparse.Namespace) -> PassOptions:
                        where.track or DEFAULT_TRACK, where.direction, where.km_origin,
                        args.vehicle_id, args.imu_topic, args.odom_topic, args.gnss_topic,
                        rate_from_bag=review.rate_from_bag,
-                       detect_fraction=fraction)
+                       detect_fraction=fraction, limits=review.limits,
+                       line_speed=review.line_speed)
 
 
 SHARED = ('params', 'vehicle', 'method', 'band', 'imu_topic', 'odom_topic', 'gnss_topic', 'line',
-          'track', 'direction', 'km_origin')  # options that mean the same as in railgsa review
+          'track', 'direction', 'km_origin', 'limits', 'line_speed')  # as in railgsa review
 
 
 def review_namespace(args: argparse.Namespace) -> argparse.Namespace:
@@ -131,7 +135,8 @@ def run_ingest(args: argparse.Namespace) -> int:
     from railgsa_ros.fleet.gnss import load_geometry
     from railgsa_ros.fleet.ingest import ingest
 
-    refuse_overlap(args.db, (*args.bags, args.params, args.vehicle, args.line_geometry))
+    refuse_overlap(args.db, (*args.bags, args.params, args.vehicle, args.line_geometry,
+                             args.limits, args.line_speed))
     options = pass_options(args)
     geometry = None
     if args.line_geometry:
@@ -142,21 +147,24 @@ def run_ingest(args: argparse.Namespace) -> int:
         label = f'pass {o.pass_id}' if o.pass_id is not None else '-'
         print(f'{o.status:<9} {label:<8} {said(o)}', flush=True)
 
-    outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show, geometry)
-    for o in outcomes:
-        if o.status == 'skipped':
-            show(o)
-    con = db.connect(args.db, read_only=True)
-    try:
-        n_pass, n_def, n_new = con.execute(
-            "SELECT (SELECT count(*) FROM passes WHERE line = $l AND track = $t AND status = "
-            "'ok'), count(*), count(*) FILTER (WHERE new) FROM defects WHERE line = $l AND "
-            "track = $t", {'l': options.line, 't': options.track}).fetchone() or (0, 0, 0)
-    finally:
-        con.close()
+    with db.damage_named(args.db):
+        outcomes = ingest(args.bags, args.db, options, args.scheduler, args.workers, show,
+                          geometry)
+        for o in outcomes:
+            if o.status in ('skipped', 'repaired'):
+                show(o)
+        con = db.connect(args.db, read_only=True)
+        try:
+            n_pass, n_def, n_new = con.execute(
+                "SELECT (SELECT count(*) FROM passes WHERE line = $l AND track = $t AND status "
+                "= 'ok'), count(*), count(*) FILTER (WHERE new) FROM defects WHERE line = $l "
+                "AND track = $t", {'l': options.line, 't': options.track}).fetchone() or (0, 0, 0)
+        finally:
+            con.close()
     bad = [o for o in outcomes if o.status in ('failed', 'unaligned')]
+    kept = sum(o.status in ('ok', 'skipped') for o in outcomes)
     print(f'{args.db}: line {options.line} track {options.track}: {n_pass} passes, {n_def} '
-          f'defects ({n_new} new); this batch: {len(outcomes) - len(bad)} stored or skipped, '
+          f'defects ({n_new} new); this batch: {kept} stored or skipped, '
           f'{len(bad)} failed')
     for o in bad:
         print(f'  {o.status}: {said(o)}', file=sys.stderr)
@@ -165,23 +173,31 @@ def run_ingest(args: argparse.Namespace) -> int:
 
 def run_report(args: argparse.Namespace) -> int:
     """Write the report and print its path."""
+    from railgsa_ros.cli.review import standard_inputs
     from railgsa_ros.fileio import refuse_overlap
+    from railgsa_ros.fleet import db
     from railgsa_ros.fleet.report import write_report
 
-    refuse_overlap(args.out, (args.db,))
-    print(write_report(args.db, args.out, args.overwrite))
+    refuse_overlap(args.out, (args.db, args.limits, args.line_speed))
+    with db.damage_named(args.db):
+        print(write_report(args.db, args.out, args.overwrite, *standard_inputs(args)))
     return 0
 
 
 def run_query(args: argparse.Namespace) -> int:
     """Print the defects between the km-posts as JSON or CSV."""
+    from railgsa_ros.cli.review import standard_inputs
     from railgsa_ros.fleet import db
-    from railgsa_ros.fleet.query import defects_between, to_csv, to_json
+    from railgsa_ros.fleet.query import defects_between, line_limits, to_csv, to_json
 
-    con = db.connect(args.db, read_only=True)
-    try:
-        rows = defects_between(con, args.line, args.from_km, args.to_km, args.track)
-    finally:
-        con.close()
+    table, line_speed = standard_inputs(args)
+    with db.damage_named(args.db):
+        con = db.connect(args.db, read_only=True)
+        try:
+            limits = line_limits(con, args.line, args.track, table, line_speed)
+            rows = defects_between(con, args.line, args.from_km, args.to_km, args.track,
+                                   limits)
+        finally:
+            con.close()
     sys.stdout.write(to_csv(rows) if args.format == 'csv' else to_json(rows) + '\n')
     return 0

@@ -51,7 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--no-uncertainty', action='store_true',
                    help='nominal reconstruction only: no band, sensitivities or histogram')
     p.add_argument('--limit-end', choices=('lower', 'upper'), default='lower',
-                   help='end of the EN 13848-5 AL/IL ranges to apply (default lower: strictest)')
+                   help="end of the standard's EN 13848-5 AL/IL ranges to apply, without "
+                        '--limits (default lower: strictest)')
+    add_standard_options(p)
     p.add_argument('--min-probability', type=float, default=LISTED_PROBABILITY, metavar='P',
                    help='list only exceedances whose probability of passing their limit or '
                         'the alert limit (from the uncertainty band) is at least P, and those '
@@ -72,6 +74,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 LOCATION_KEYS = ('line', 'track', 'direction', 'km_origin')  # params-file keys, as the nodes'
+
+
+def add_standard_options(p: argparse.ArgumentParser) -> None:
+    """--limits and --line-speed: what classes every EN 13848-5 defect (review and fleet)."""
+    p.add_argument('--limits', metavar='TABLE.yaml',
+                   help="the infrastructure manager's AL/IL/IAL table per speed range "
+                        '(config/limits_en13848.yaml; default: the standard\'s table)')
+    p.add_argument('--line-speed', metavar='SPEEDS.yaml',
+                   help="the line's permitted speed per km range, YAML or CSV from_km,to_km,"
+                        'speed_kmh (config/line_speed_example.yaml; default: class by the '
+                        'measuring speed)')
+
+
+def standard_inputs(args: argparse.Namespace) -> tuple[Any, Any]:
+    """(limit table or None, line speed or None) of --limits and --line-speed (ConfigError
+    naming the file and field)."""
+    from railgsa_ros.standards.en13848 import load_limit_table
+    from railgsa_ros.standards.line_speed import load_line_speed
+
+    return (load_limit_table(args.limits) if args.limits else None,
+            load_line_speed(args.line_speed) if args.line_speed else None)
 
 
 def bag_topic(name: str) -> str:
@@ -165,12 +188,18 @@ def build_options(args: argparse.Namespace) -> Any:
         source = args.uncertainty or params.get('uncertainty_file') or None
         dists = load_uncertainty(source) if source else table3(vehicle)
         config = with_discrepancy(config, source)
+    table, line_speed = standard_inputs(args)
+    if table is not None and args.limit_end != 'lower':
+        from railgsa_ros.errors import ConfigError
+
+        raise ConfigError("--limit-end: applies to the standard's table, not to --limits")
     return ReviewOptions(Path(args.bag), config, vehicle, dists,
                          Path(args.truth) if args.truth else None, args.limit_end,
                          imu_topic=args.imu_topic, odom_topic=args.odom_topic,
                          rate_from_bag='rate_hz' not in params, gnss_topic=args.gnss_topic,
                          reference=reference(args, params),
-                         min_probability=min_probability(args.min_probability))
+                         min_probability=min_probability(args.min_probability),
+                         limits=table, line_speed=line_speed)
 
 
 def min_probability(value: float) -> float:
@@ -182,6 +211,21 @@ def min_probability(value: float) -> float:
     return value
 
 
+def outside_line_speed(review: Any) -> str:
+    """'' when --line-speed covers the run's km-posts, else what part of the run it leaves out
+    (no limit applies there)."""
+    speeds = review.limits.line_speed
+    if speeds is None:
+        return ''
+    ref, run = review.location.reference, review.run
+    start, end = sorted(float(ref.km(c)) for c in (run.first[1], run.last[1]))
+    first, last = speeds.span_km
+    if first <= start and end <= last:
+        return ''
+    return (f'the run covers km {start:.3f}-{end:.3f}, {speeds.name} only km {first:g}-{last:g}: '
+            'no limit applies outside')
+
+
 def run(args: argparse.Namespace) -> int:
     """Build the review, write the report, print where it is and the headline numbers."""
     from railgsa_ros.fileio import refuse_overlap
@@ -189,7 +233,8 @@ def run(args: argparse.Namespace) -> int:
     from railgsa_ros.review.exceedances import describe_counts
     from railgsa_ros.review.progress import Progress
 
-    refuse_overlap(args.out, (args.bag, args.truth, args.params, args.vehicle, args.uncertainty))
+    refuse_overlap(args.out, (args.bag, args.truth, args.params, args.vehicle, args.uncertainty,
+                              args.limits, args.line_speed))
 
     options = build_options(args)
     bar = Progress(1000, 'review', enabled=args.progress)
@@ -203,6 +248,9 @@ def run(args: argparse.Namespace) -> int:
     for finding in review.run.findings:
         if finding.level:
             print(f'warning: {finding.message}', file=sys.stderr)
+    outside = outside_line_speed(review)
+    if outside:
+        print(f'warning: {outside}', file=sys.stderr)
     if args.json:
         import json
 

@@ -15,8 +15,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` subcommand."""
     p = subparsers.add_parser(
         'simulate', help='simulate a car-body IMU run and write it as a rosbag2 bag',
-        description='Simulate the quarter vehicle on a track profile, measure the car-body '
-                    'acceleration with a MEMS IMU model and write /imu/data (sensor_msgs/Imu), '
+        description='Simulate a vehicle (the quarter car, or a coach file: each wheelset at its '
+                    'own delay) on a track profile, measure the car-body acceleration (and a '
+                    'coach\'s pitch rate, with a gyro) with a MEMS IMU model and write '
+                    '/imu/data (sensor_msgs/Imu), '
                     '/odom (nav_msgs/Odometry) and /track/irregularity_truth '
                     '(geometry_msgs/PointStamped) to a rosbag2 bag.')
     p.add_argument('--out', required=True, metavar='PATH', help='bag directory to create')
@@ -42,7 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help='isolated defects added to the profile, e.g. '
                         '"dip@150:len=10:depth=0.004,joint@300" (see docs/simulation.md)')
     p.add_argument('--vehicle', default=None, metavar='FILE',
-                   help='vehicle YAML (default: the paper Table 1)')
+                   help='vehicle YAML: a quarter car (config/vehicle.yaml) or a coach '
+                        '(config/vehicles/coach.yaml); default the paper Table 1')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='rosbag2 storage (default mcap)')
     p.add_argument('--compression', choices=('zstd', 'none'), default=None,
@@ -108,7 +111,7 @@ class SimOptions:
     sensor: str = 'adxl355'
     seed: int = 0
     defects: str | None = None
-    vehicle: Any = None  # a vehicle YAML path, VehicleParams or theta (5,)
+    vehicle: Any = None  # a vehicle YAML path, VehicleParams, theta (5,) or a VehicleModel
     storage: str = 'mcap'
     compression: str | None = None
     odom_rate: float = 50.0

@@ -2,15 +2,17 @@
 
 Recomputed from the database after every batch (cheap next to the inversion): ``fuse`` gives
 each pass's scatter sigma_p and gain g_p and the fused profile; every pass is searched for
-defects (``defects.detect``) against the alert limit of the line's speed class at each cell
-(``line_speed``: the fastest pass there), so whether a defect is followed does not depend on
-how fast the train that saw it ran; detections are matched into defects; each defect is then
-measured in every pass covering it, found there or not, so its depth series has no holes. The
-depth of pass p has the SD sqrt(sigma_p^2 + (s_g d)^2), s_g the RMS gain of the line's passes
-(a vehicle or speed that reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when
-earlier passes covered its position, did not find it, and saw less than NEW_RATIO of the depth
-of its first detection there (a defect that grows past the detection threshold is not new); its
-trend then starts at its first detection.
+defects (``defects.detect``) against the alert limit of the speed range at each cell: the
+line's permitted speed there (``standards.line_speed``, ``--line-speed``), else the fastest
+pass there (``fastest_speed``), so whether a defect is followed does not depend on how fast the
+train that saw it ran. Every level is ``standards.en13848.classify``'s, as in the review;
+detections are matched into defects; each defect is then measured in every pass covering it,
+found there or not, so its depth series has no holes. The depth of pass p has the SD
+sqrt(sigma_p^2 + (s_g d)^2), s_g the RMS gain of the line's passes (a vehicle or speed that
+reads 2 % high reads a 6 mm defect 0.12 mm high). A defect is NEW when earlier passes covered
+its position, did not find it, and saw less than NEW_RATIO of the depth of its first detection
+there (a defect that grows past the detection threshold is not new); its trend then starts at
+its first detection.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from railgsa_ros.fleet.align import Alignment
 from railgsa_ros.fleet.defects import DETECT_FRACTION, Peak, detect, match, measure
 from railgsa_ros.fleet.fuse import fuse_line, pass_scatter
 from railgsa_ros.fleet.trend import crossing, fit_trend
-from railgsa_ros.review.limits import LEVELS, Limits
+from railgsa_ros.standards.en13848 import LEVELS, Limits, level_name
 
 if TYPE_CHECKING:
     from railgsa_ros.geo import Line
@@ -62,11 +64,11 @@ def line_passes(con: duckdb.DuckDBPyConnection, line: str, track: str) -> list[L
     return out
 
 
-def line_speed(con: duckdb.DuckDBPyConnection, line: str, track: str
-               ) -> dict[str, np.ndarray]:
+def fastest_speed(con: duckdb.DuckDBPyConnection, line: str, track: str
+                  ) -> dict[str, np.ndarray]:
     """cell and speed_mps, the fastest |speed| (m/s) of the line's 'ok' passes over each valid
-    cell, in cell order: the speed class of a place is the line's (EN 13848-5 classes by line
-    speed), which no measuring train exceeds; the fastest pass is its best lower bound."""
+    cell, in cell order: without the line's permitted speed (EN 13848-5 classes by it), which
+    no measuring train exceeds, the fastest pass is its best lower bound."""
     return db.fetch(con, """SELECT pr.cell, max(abs(pr.speed_mps)) AS speed_mps
                             FROM profiles pr JOIN passes pa USING (pass_id)
                             WHERE pa.line = ? AND pa.track = ? AND pa.status = 'ok' AND pr.valid
@@ -79,30 +81,69 @@ def pass_profile(con: duckdb.DuckDBPyConnection, pass_id: int) -> dict[str, np.n
                          'WHERE pass_id = ? ORDER BY cell', [pass_id])
 
 
-def _level(depth_m: float, limits_row: np.ndarray) -> tuple[str, str, float]:
-    """(level reached or '', next level or '', next limit (m) or NaN) of a depth."""
-    with np.errstate(invalid='ignore'):
-        passed = np.flatnonzero(depth_m > limits_row)
-    level = LEVELS[passed[-1]] if passed.size else ''
-    nxt = passed[-1] + 1 if passed.size else 0
-    if nxt >= len(LEVELS) or not np.isfinite(limits_row[nxt]):
-        return level, '', float('nan')
-    return level, LEVELS[nxt], float(limits_row[nxt])
+def ok_passes(con: duckdb.DuckDBPyConnection, line: str, track: str) -> tuple[int, int]:
+    """(count, largest id) of the line's 'ok' passes ((0, 0) for none): ids only grow and
+    passes are never removed, so this pair changes with every pass stored."""
+    count, last = con.execute("""SELECT count(*), coalesce(max(pass_id), 0) FROM passes
+                                 WHERE line = ? AND track = ? AND status = 'ok'""",
+                              [line, track]).fetchone() or (0, 0)
+    return int(count), int(last)
+
+
+def is_current(con: duckdb.DuckDBPyConnection, line: str, track: str) -> bool:
+    """Whether the line's condition (fused profile, defects) was computed from the 'ok' passes
+    it holds now: False when a pass was stored and the process died before (or during) the
+    update, or the update predates ``line_updates``."""
+    done = con.execute('SELECT passes, last_pass FROM line_updates WHERE line = ? AND track = ?',
+                       [line, track]).fetchone()
+    now = ok_passes(con, line, track)
+    return now[0] == 0 or (done is not None and tuple(done) == now)
+
+
+def _level(limits: Limits, depth_m: float, x_m: float, speed_mps: float
+           ) -> tuple[str, str, float]:
+    """(level reached or '', next level or '', next limit (m) or NaN) of a depth at line
+    position x (m), measured at speed (m/s): the next level is the next one the table has."""
+    at = (np.array([depth_m]), np.array([x_m]), np.array([speed_mps]))
+    level = int(limits.classify(*at)[0])
+    row = limits.at(*at[1:])[0]
+    above = [j for j in range(level, len(LEVELS)) if np.isfinite(row[j])]
+    if not above:
+        return level_name(level), '', float('nan')
+    return level_name(level), LEVELS[above[0]], float(row[above[0]])
+
+
+def reclass(row: dict, limits: Limits) -> dict:
+    """A defects row (km, depth_m, speed_kmh, level, next_level, next_limit_m, projected*)
+    classed by ``limits`` (as ``fleet report`` and ``query`` apply a table and line speed to a
+    stored line): the projected dates are kept where the next limit did not change, else
+    None (they need the trend: ``fleet ingest`` with the same table computes them)."""
+    level, nxt, limit = _level(limits, row['depth_m'], 1000.0 * row['km'],
+                               row['speed_kmh'] / 3.6)
+    out = {**row, 'level': level, 'next_level': nxt, 'next_limit_m': limit}
+    stored = row.get('next_limit_m')
+    stored = float('nan') if stored is None else float(stored)
+    if nxt != row.get('next_level') or not np.isclose(stored, limit, rtol=1e-12, atol=0.0,
+                                                      equal_nan=True):
+        out.update({k: None for k in ('projected', 'projected_early', 'projected_late')
+                    if k in row})
+    return out
 
 
 def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
                 limits: Limits, geometry: Line | None = None,
                 fraction: float = DETECT_FRACTION) -> None:
-    """Recompute the line's scatter, fused profile, detections and defects (module docstring);
-    with a ``geo.Line`` in the line's frame, the defects get their WGS84 position; defects are
-    detected from ``fraction`` of the alert limit."""
+    """Recompute the line's scatter, fused profile, detections and defects (module docstring)
+    and record the passes they come from (``line_updates``); with a ``geo.Line`` in the line's
+    frame, the defects get their WGS84 position; defects are detected from ``fraction`` of the
+    alert limit. Run it in one transaction (``db.transaction``)."""
     pass_scatter(con, line, track)
     fuse_line(con, line, track)
     passes = line_passes(con, line, track)
     gains = np.array([p.gain for p in passes])
     s_g = float(np.sqrt(np.mean(gains[np.isfinite(gains)] ** 2))) if np.isfinite(gains).any() \
         else 0.0
-    fastest = line_speed(con, line, track)
+    fastest = fastest_speed(con, line, track)
     found: list[tuple[int, Peak]] = []  # (pass index, peak) in time order
     for i, p in enumerate(passes if fastest['cell'].size else []):  # none: no valid cell
         prof = pass_profile(con, p.pass_id)
@@ -138,6 +179,8 @@ def update_line(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
                         [line, track]).fetchone()
     where = geometry if frame is not None and frame[0] == 'gnss' else None
     _store(con, line, track, rows, x_def, sign_def, limits, where)
+    con.execute('INSERT OR REPLACE INTO line_updates VALUES (?, ?, ?, ?)',
+                [line, track, *ok_passes(con, line, track)])
 
 
 def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, rows: dict[str, list],
@@ -152,8 +195,7 @@ def _store(con: duckdb.DuckDBPyConnection, line: str, track: str, rows: dict[str
     if r['pass'].size == 0:
         return
     speed_kmh = np.abs(r['speed'].astype(float)) * 3.6
-    thresholds = limits.at(r['speed'])
-    levels = [_level(dep, row)[0] for dep, row in zip(r['depth'], thresholds, strict=True)]
+    levels = [level_name(k) for k in limits.classify(r['depth'], r['x'], r['speed'])]
     db.insert_columns(con, 'detections', {
         'pass_id': r['pass'].astype(np.int32), 'line': np.full(r['pass'].size, line),
         'track': np.full(r['pass'].size, track), 'defect_id': r['defect'].astype(np.int32),
@@ -192,7 +234,7 @@ def _store_defect(con: duckdb.DuckDBPyConnection, line: str, track: str, d: int,
         fitted, fitted_sd = trend.at(now)
         depth, depth_sd = float(fitted), float(fitted_sd)
         rate, rate_se = trend.rate_m_per_day, trend.rate_se
-    level, nxt, limit = _level(depth, limits.at(np.array([speed]))[0])
+    level, nxt, limit = _level(limits, depth, x, speed)
     if trend is not None and np.isfinite(limit):
         dates = tuple(_date(t) for t in crossing(trend, limit, now))
     w = 1.0 / obs['x_sd'][use] ** 2 if np.all(obs['x_sd'][use] > 0) else None

@@ -3,7 +3,8 @@
 One writer at a time (DuckDB is single-writer): the ingest client writes, Dask workers never
 touch the file. Tables (docs/fleet.md has the columns and units):
 
-- ``passes``: one row per bag (status ``ok``, ``unaligned`` or ``failed`` with its message);
+- ``passes``: one row per bag (status ``ok``, ``unaligned`` or ``failed`` with its message,
+  the digest of its content: ``bag.digest``);
 - ``alignments``: offset, scale and their covariance, method and correlation per pass;
 - ``lines``: one row per (line, track): grid step, band, reference pass, frame ('gnss': the
   chainage of the line geometry; 'odometry': the first pass's odometry) and geometry (JSON);
@@ -11,11 +12,18 @@ touch the file. Tables (docs/fleet.md has the columns and units):
 - ``fused``: the fused profile per line with its standard deviation and pass count;
 - ``segments``: SD of the band-filtered profile per 200 m section per pass;
 - ``detections``: defects found in each pass (or measured there for a defect found elsewhere);
-- ``defects``: one row per defect followed over passes, with its trend and projected limit date.
+- ``defects``: one row per defect followed over passes, with its trend and projected limit date;
+- ``line_updates``: per line, the 'ok' passes (count, last id) its condition was last computed
+  from: a line whose passes differ was cut short by a crash and is rebuilt (``ingest``).
+
+Each pass and each line update is one transaction: a process killed in the middle leaves the
+database as it was before that step.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -55,6 +63,9 @@ CREATE TABLE IF NOT EXISTS defects (
     depth_m DOUBLE, depth_sd_m DOUBLE, rate_mm_per_year DOUBLE, rate_se_mm_per_year DOUBLE,
     speed_kmh DOUBLE, level VARCHAR, next_level VARCHAR, next_limit_m DOUBLE,
     projected DATE, projected_early DATE, projected_late DATE, lat DOUBLE, lon DOUBLE);
+ALTER TABLE passes ADD COLUMN IF NOT EXISTS digest VARCHAR;
+CREATE TABLE IF NOT EXISTS line_updates (
+    line VARCHAR, track VARCHAR, passes INTEGER, last_pass INTEGER, PRIMARY KEY (line, track));
 """
 
 
@@ -70,6 +81,33 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
     if not read_only:
         con.execute(SCHEMA)
     return con
+
+
+@contextmanager
+def transaction(con: duckdb.DuckDBPyConnection) -> Iterator[None]:
+    """The block as one transaction: committed at its end, rolled back on an exception (and by
+    DuckDB's recovery when the process dies inside it)."""
+    con.begin()
+    try:
+        yield
+    except BaseException:
+        con.rollback()
+        raise
+    con.commit()
+
+
+@contextmanager
+def damage_named(path: str | Path) -> Iterator[None]:
+    """DuckDB errors inside the block as one InputError naming the database: a corrupt block
+    (checksum), an I/O error; errors in our own SQL (``duckdb.ProgrammingError``) pass."""
+    try:
+        yield
+    except duckdb.ProgrammingError:
+        raise
+    except duckdb.Error as exc:
+        text = ' '.join(str(exc).split())
+        raise InputError(f'{path}: damaged database ({text[:160]}); restore it from a backup or '
+                         're-ingest its bags into a new file') from None
 
 
 def timestamp(stamp_ns: float) -> datetime:

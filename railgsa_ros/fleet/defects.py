@@ -1,11 +1,11 @@
 """Isolated defects in one pass on the line grid, and the same defect across passes.
 
 A defect is a local peak of |u| (mean-to-peak of the band-filtered profile, as EN 13848-5)
-above ``DETECT_FRACTION`` of the alert limit of the speed class there, at least ``MIN_SEP_M``
-from a larger one (scipy.signal.find_peaks); its position and depth are refined by a parabola
-through the peak cell and its neighbours. Detections of different passes are the same defect
-when they have the same sign and lie within ``TOLERANCE_M`` of it (matched in time order, each
-to the nearest defect; a defect's position is the mean of its detections).
+above ``DETECT_FRACTION`` of the alert limit of the speed range there (``standards.en13848``),
+at least ``MIN_SEP_M`` from a larger one (scipy.signal.find_peaks); its position and depth are
+refined by a parabola through the peak cell and its neighbours. Detections of different passes
+are the same defect when they have the same sign and lie within ``TOLERANCE_M`` of it (matched
+in time order, each to the nearest defect; a defect's position is the mean of its detections).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import find_peaks
 
-from railgsa_ros.review.limits import Limits
+from railgsa_ros.standards.en13848 import Limits
 
 DETECT_FRACTION = 0.5  # of the alert limit: defects are followed well before they reach it
 MIN_SEP_M = 5.0
@@ -46,8 +46,9 @@ def _refine(mag: np.ndarray, k: int, dx: float) -> tuple[float, float]:
 def detect(cells: np.ndarray, u_m: np.ndarray, valid: np.ndarray, speed_mps: np.ndarray,
            dx: float, limits: Limits, fraction: float = DETECT_FRACTION,
            min_sep_m: float = MIN_SEP_M) -> list[Peak]:
-    """Peaks of |u| above ``fraction`` of the alert limit at each cell's speed."""
-    threshold = fraction * limits.at(speed_mps)[:, 0]
+    """Peaks of |u| above ``fraction`` of the alert limit at each cell (line position cell * dx
+    m, measured speed m/s)."""
+    threshold = fraction * limits.at(np.asarray(cells) * dx, speed_mps)[:, 0]
     mag = np.where(valid & np.isfinite(threshold), np.abs(u_m), 0.0)
     found, _ = find_peaks(mag, height=np.nan_to_num(threshold, nan=np.inf),
                           distance=max(int(min_sep_m / dx), 1))

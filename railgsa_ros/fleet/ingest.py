@@ -4,8 +4,11 @@ Each bag is one Dask task (``passes.analyse_pass``, retried by Dask on a lost wo
 client takes the results in submission order (so the first bag of a new line defines its frame
 whatever finishes first), aligns each against its line's reference and writes it: DuckDB has one
 writer, the client. A task that raises is a failed pass: one line in the summary and in
-``passes.message``; the rest of the batch goes on. After the batch every touched line is
-recomputed (``condition.update_line``).
+``passes.message``; the rest of the batch goes on. A bag already stored, by path or by content
+(``bag.digest``: a copy under another name), is skipped. After the batch the line is recomputed
+(``condition.update_line``) in one transaction. A line whose condition is not computed from
+the passes it holds (a process killed between storing a pass and the end of the line update) is
+rebuilt from its stored passes by the next ingest, even when every bag of it is skipped.
 """
 
 from __future__ import annotations
@@ -20,13 +23,15 @@ from typing import TYPE_CHECKING
 import duckdb
 import numpy as np
 
+from railgsa_ros.bag.digest import bag_digest
+from railgsa_ros.errors import RailGsaError
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.align import Alignment, Reference, on_line_grid, origin, xcorr_align
-from railgsa_ros.fleet.condition import update_line
+from railgsa_ros.fleet.condition import is_current, ok_passes, update_line
 from railgsa_ros.fleet.gnss import align_fixes, geometry_json, line_from_json
 from railgsa_ros.fleet.passes import PassFailure, PassOptions, PassResult, analyse_or_fail
-from railgsa_ros.review.limits import en13848_limits
-from railgsa_ros.review.sections import section_sd
+from railgsa_ros.standards.en13848 import Limits, en13848_table
+from railgsa_ros.standards.sections import section_sd
 
 if TYPE_CHECKING:
     from dask.distributed import Client
@@ -39,7 +44,8 @@ RETRIES = 2  # Dask reruns a task whose worker died or that raised unexpectedly
 
 @dataclass(frozen=True)
 class Outcome:
-    """What happened to one bag: pass id (None when skipped), status and a one-line message."""
+    """What happened to one bag: pass id (None when skipped), status and a one-line message; or
+    to the line (``bag`` 'line L track T', status 'repaired': ``_repair``)."""
 
     bag: str
     pass_id: int | None
@@ -88,12 +94,12 @@ def _reference(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float
 
 def _pass_row(con: duckdb.DuckDBPyConnection, bag: str, options: PassOptions, status: str,
               message: str, result: PassResult | None = None,
-              alignment: Alignment | None = None) -> int:
-    """Insert the passes row; returns its id."""
+              alignment: Alignment | None = None, digest: str | None = None) -> int:
+    """Insert the passes row (``digest``: of the bag's content); returns its id."""
     (pid,) = con.execute("SELECT nextval('pass_ids')").fetchone() or (None,)
     o = options
     values = [pid, bag, o.line, o.track, o.direction, None, None, o.vehicle_id, None, None, None,
-              None, None, None, None, None, None, None, status, message, datetime.now()]
+              None, None, None, None, None, None, None, status, message, datetime.now(), digest]
     if result is not None:
         speed = np.abs(result.speed_mps)
         values[5:16] = [db.timestamp(result.start_ns), db.timestamp(result.end_ns), o.vehicle_id,
@@ -127,8 +133,9 @@ def _align(ref: Reference | None, result: PassResult, geometry: Line | None,
 
 
 def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult,
-               geometry: Line | None = None) -> Outcome:
-    """Align one pass against its line, write its rows; status 'ok' or 'unaligned'."""
+               geometry: Line | None = None, digest: str | None = None) -> Outcome:
+    """Align one pass against its line, write its rows (``digest``: of the bag's content);
+    status 'ok' or 'unaligned'."""
     o, dx = result.options, result.options.dx_m
     ref = _reference(con, o.line, o.track, dx)
     row = con.execute("""SELECT l.frame, a.offset_sd_m, a.scale_sd, a.cov_offset_scale
@@ -140,9 +147,10 @@ def store_pass(con: duckdb.DuckDBPyConnection, result: PassResult,
     alignment = _align(ref, result, geometry, row[0] if row else None, frame_cov)
     if alignment is None:
         pid = _pass_row(con, result.bag, o, 'unaligned',
-                        "no stretch matches the line's profile (correlation below 0.6)", result)
+                        "no stretch matches the line's profile (correlation below 0.6)", result,
+                        digest=digest)
         return Outcome(result.bag, pid, 'unaligned', 'not aligned: no match with the line')
-    pid = _pass_row(con, result.bag, o, 'ok', '', result, alignment)
+    pid = _pass_row(con, result.bag, o, 'ok', '', result, alignment, digest)
     if ref is None:
         con.execute('INSERT INTO lines VALUES (?, ?, ?, ?, ?, ?, ?)',
                     [o.line, o.track, dx, o.config.inversion.band, pid,
@@ -188,6 +196,41 @@ def _geometry(con: duckdb.DuckDBPyConnection, options: PassOptions,
     return line_from_json(row[0]) if row and row[0] else None
 
 
+def _new_bags(con: duckdb.DuckDBPyConnection, names: Sequence[str]
+              ) -> tuple[list[Outcome], dict[str, str | None]]:
+    """(skipped, to do) of resolved bag paths: a bag is skipped when an 'ok' pass has its path
+    or its content (``bag.digest``: a copy under another path or name, also of another bag of
+    the batch); the others map to their digest (None when unreadable: the worker reports
+    why)."""
+    done = {bag for (bag,) in con.execute(
+        "SELECT bag FROM passes WHERE status = 'ok'").fetchall()}
+    seen = {digest: f'pass {pid} ({bag})' for digest, pid, bag in con.execute(
+        "SELECT digest, min(pass_id), arg_min(bag, pass_id) FROM passes "
+        "WHERE status = 'ok' AND digest IS NOT NULL GROUP BY digest").fetchall()}
+    skipped, todo = [], {}
+    for bag in names:
+        if bag in done:
+            skipped.append(Outcome(bag, None, 'skipped', 'already in the database'))
+        elif bag not in todo:
+            digest = _digest(bag)
+            if digest in seen:
+                skipped.append(Outcome(bag, None, 'skipped', f'same content as {seen[digest]}: '
+                                                             'a copy, not ingested again'))
+                continue
+            todo[bag] = digest
+            if digest is not None:
+                seen[digest] = f'{bag} of this batch'
+    return skipped, todo
+
+
+def _digest(bag: str) -> str | None:
+    """The bag's content digest; None when it cannot be read."""
+    try:
+        return bag_digest(bag)
+    except RailGsaError:
+        return None
+
+
 def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions,
            scheduler: str | None = None, workers: int = 2,
            report: Callable[[Outcome], None] | None = None,
@@ -197,16 +240,12 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
     con = db.connect(db_path)
     try:
         geometry = _geometry(con, options, geometry)
-        done = {row[0] for row in con.execute(
-            "SELECT bag FROM passes WHERE status = 'ok'").fetchall()}
-        names = [str(Path(b).resolve()) for b in bags]
-        outcomes = [Outcome(b, None, 'skipped', 'already in the database')
-                    for b in names if b in done]
-        todo = [b for b in dict.fromkeys(names) if b not in done]
+        outcomes, todo = _new_bags(con, [str(Path(b).resolve()) for b in bags])
         if not todo:
-            return outcomes
+            repaired = _repair(con, options, geometry)
+            return outcomes + ([repaired] if repaired is not None else [])
         with dask_client(scheduler, workers) as client:
-            futures = client.map(analyse_or_fail, todo, options=options, pure=False,
+            futures = client.map(analyse_or_fail, list(todo), options=options, pure=False,
                                  retries=RETRIES)
             for bag, future in zip(todo, futures, strict=True):
                 try:
@@ -214,19 +253,39 @@ def ingest(bags: Sequence[str | Path], db_path: str | Path, options: PassOptions
                 except Exception as exc:  # failed after Dask's retries: recorded, batch goes on
                     result = PassFailure(bag, _one_line(exc))
                 if isinstance(result, PassFailure):
-                    pid = _pass_row(con, bag, options, 'failed', result.message)
+                    pid = _pass_row(con, bag, options, 'failed', result.message,
+                                    digest=todo[bag])
                     outcome = Outcome(bag, pid, 'failed', result.message)
                 else:
-                    con.begin()
-                    outcome = store_pass(con, result, geometry)
-                    con.commit()
+                    with db.transaction(con):
+                        outcome = store_pass(con, result, geometry, todo[bag])
                 future.release()
                 outcomes.append(outcome)
                 if report is not None:
                     report(outcome)
-        update_line(con, options.line, options.track, options.dx_m,
-                    en13848_limits(options.config.inversion.band), geometry,
-                    options.detect_fraction)
+        _update(con, options, geometry)
     finally:
         con.close()
     return outcomes
+
+
+def _update(con: duckdb.DuckDBPyConnection, options: PassOptions, geometry: Line | None) -> None:
+    """Recompute the line of ``options`` in one transaction."""
+    with db.transaction(con):
+        update_line(con, options.line, options.track, options.dx_m,
+                    Limits(options.limits or en13848_table(), options.config.inversion.band,
+                           options.line_speed), geometry,
+                    options.detect_fraction)
+
+
+def _repair(con: duckdb.DuckDBPyConnection, options: PassOptions,
+            geometry: Line | None) -> Outcome | None:
+    """Rebuild the line of ``options`` when its condition is not computed from the passes it
+    holds (``condition.is_current``); the outcome saying so, None when it was current."""
+    if is_current(con, options.line, options.track):
+        return None
+    _update(con, options, geometry)
+    name = f'line {options.line} track {options.track}'
+    return Outcome(name, None, 'repaired', f'{name}: its last update did not finish; fused '
+                   f'profile and defects rebuilt from its '
+                   f'{ok_passes(con, options.line, options.track)[0]} stored passes')

@@ -4,7 +4,7 @@
 (``railgsa_ros.offline``: the bag in pieces of about 65,536 IMU samples through the nominal
 streaming core, in constant memory; no surrogate band: the fleet measures the pass-to-pass
 scatter from repeated passes instead), each piece's output gridded as it comes
-(``review.grid.GridBuilder``: 0.25 m cells of odometry chainage; cells across data gaps, and
+(``standards.sampling.GridBuilder``: 0.25 m cells of odometry chainage; cells across data gaps, and
 cells outside the speeds the input policy trusts (``trusted_speeds``), are invalid). It
 returns the band-filtered profile with the stamp and speed of each cell and what the database
 needs about the pass: plain numpy arrays, about 4 values per metre of track, so Dask ships
@@ -34,7 +34,9 @@ from railgsa_ros.offline import (
     peek,
     steps,
 )
-from railgsa_ros.review.grid import GridBuilder
+from railgsa_ros.standards.en13848 import LimitTable
+from railgsa_ros.standards.line_speed import LineSpeed
+from railgsa_ros.standards.sampling import GridBuilder
 from railgsa_ros.uncertainty import UncertaintyConfig
 from railgsa_ros.vehicle import VehicleParams
 
@@ -47,7 +49,8 @@ class PassOptions:
     vehicle, location (line, track, direction of the km-posts along the run 'increasing' or
     'decreasing', km-post of the odometry origin), vehicle id, topics (IMU, odometry, GNSS),
     grid step (m), whether the IMU rate comes from the bag (else ``config.inversion.rate_hz``)
-    and the share of the alert limit from which the line's defects are detected."""
+    and the share of the alert limit from which the line's defects are detected, the limit
+    table and the line's permitted speed that class them."""
 
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
     vehicle: VehicleParams = field(default_factory=VehicleParams)
@@ -62,6 +65,8 @@ class PassOptions:
     dx_m: float = DX_M
     rate_from_bag: bool = True
     detect_fraction: float = DETECT_FRACTION
+    limits: LimitTable | None = None  # the manager's table; None: the standard's (lower end)
+    line_speed: LineSpeed | None = None  # None: class by the measuring speed (fastest pass)
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,9 @@ import math
 import duckdb
 
 from railgsa_ros.errors import InputError
+from railgsa_ros.fleet.condition import reclass
+from railgsa_ros.standards.en13848 import Limits, LimitTable, en13848_table
+from railgsa_ros.standards.line_speed import LineSpeed
 
 COLUMNS = ('line', 'track', 'defect_id', 'km', 'x_sd_m', 'sign', 'depth_m', 'depth_sd_m',
            'rate_mm_per_year', 'rate_se_mm_per_year', 'speed_kmh', 'level', 'next_level',
@@ -38,11 +41,21 @@ def line_span_km(con: duckdb.DuckDBPyConnection, line: str, track: str | None = 
     return (float('nan'), float('nan')) if lo is None else (lo / 1000.0, hi / 1000.0)
 
 
+def line_limits(con: duckdb.DuckDBPyConnection, line: str, track: str | None,
+                table: LimitTable | None, line_speed: LineSpeed | None) -> Limits | None:
+    """The limits of ``table`` (None: the standard's) and ``line_speed`` in the band of the
+    line (of its first track when ``track`` is None); None for a line the database lacks."""
+    row = con.execute('SELECT band FROM lines WHERE line = ? AND (? IS NULL OR track = ?) '
+                      'ORDER BY track', [line, track, track]).fetchone()
+    return None if row is None else Limits(table or en13848_table(), row[0], line_speed)
+
+
 def defects_between(con: duckdb.DuckDBPyConnection, line: str, from_km: float, to_km: float,
-                    track: str | None = None) -> list[dict]:
+                    track: str | None = None, limits: Limits | None = None) -> list[dict]:
     """The followed defects of ``line`` (and ``track`` if given) with from_km <= km <= to_km,
-    in km order: one dict per defect with COLUMNS. InputError for a line or track the database
-    does not hold, or a km range that misses the line's (``line_span_km``)."""
+    in km order: one dict per defect with COLUMNS, classed by ``limits`` when given
+    (``condition.reclass``; None: as stored by the ingest). InputError for a line or track the
+    database does not hold, or a km range that misses the line's (``line_span_km``)."""
     lo, hi = sorted((from_km, to_km))
     first, last = line_span_km(con, line, track)
     if not (math.isfinite(lo) and math.isfinite(hi)) or not lo <= last or not hi >= first:
@@ -51,7 +64,10 @@ def defects_between(con: duckdb.DuckDBPyConnection, line: str, from_km: float, t
     sql = (f'SELECT {", ".join(COLUMNS)} FROM defects WHERE line = ? AND km BETWEEN ? AND ?'
            + (' AND track = ?' if track is not None else '') + ' ORDER BY km, track')
     params = [line, lo, hi] + ([track] if track is not None else [])
-    return [dict(zip(COLUMNS, row, strict=True)) for row in con.execute(sql, params).fetchall()]
+    rows = [dict(zip(COLUMNS, row, strict=True)) for row in con.execute(sql, params).fetchall()]
+    if limits is None:
+        return rows
+    return [{**reclass(r, limits), 'class_basis': limits.basis} for r in rows]
 
 
 def _plain(value: object) -> object:
@@ -72,7 +88,8 @@ def to_csv(rows: list[dict]) -> str:
     """Rows as CSV with a header (empty fields for missing values)."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
-    writer.writerow(COLUMNS)
+    columns = list(rows[0]) if rows else list(COLUMNS)
+    writer.writerow(columns)
     for r in rows:
-        writer.writerow(['' if _plain(r[c]) is None else _plain(r[c]) for c in COLUMNS])
+        writer.writerow(['' if _plain(r[c]) is None else _plain(r[c]) for c in columns])
     return out.getvalue()

@@ -32,11 +32,12 @@ from railgsa_ros import gis
 from railgsa_ros.envelope import envelope
 from railgsa_ros.fileio import atomic_output
 from railgsa_ros.fleet import db
-from railgsa_ros.fleet.condition import DAY_NS
+from railgsa_ros.fleet.condition import DAY_NS, reclass
 from railgsa_ros.fleet.gnss import line_from_json
 from railgsa_ros.fleet.trend import fit_trend
-from railgsa_ros.review.limits import LEVELS, Limits, en13848_limits
-from railgsa_ros.review.sections import SECTION_M
+from railgsa_ros.standards.en13848 import LEVELS, Limits, LimitTable, en13848_table
+from railgsa_ros.standards.line_speed import LineSpeed
+from railgsa_ros.standards.sections import SECTION_M
 from railgsa_ros.svg_views import CSS as SVG_CSS
 from railgsa_ros.svg_views import MAP_LEGEND, SCRIPT, Mark, map_svg, profile_legend, profile_svg
 
@@ -65,19 +66,16 @@ def fused_profile(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: flo
                              GROUP BY cell) v USING (cell)
                          WHERE f.line = ? AND f.track = ? ORDER BY f.cell""",
                  [line, track, line, track])
-    d = db.fetch(con, 'SELECT x_m, km, sign, depth_m, level, new FROM defects '
-                      'WHERE line = ? AND track = ? ORDER BY km', [line, track])
     x = f['cell'] * dx
     # the strictest limits per bin (its fastest pass), as the defects are classed; NaN speed
     # (no pass there): no limit
     xl, _, fastest = envelope(x, np.asarray(f['speed_mps'], dtype=float))
-    thresholds = limits.at(fastest) * MM
+    thresholds = limits.at(xl, fastest) * MM
     levels = [lv for j, lv in enumerate(LEVELS) if np.any(np.isfinite(thresholds[:, j]))]
-    marks = [Mark(xm, s * dep * MM, lv or 'none',
-                  f'{lv or "below AL"}{" NEW" if new else ""} at km {k:.4f}: '
-                  f'{s * dep * MM:+.2f} mm', bool(new))
-             for xm, k, s, dep, lv, new in zip(d['x_m'], d['km'], d['sign'], d['depth_m'],
-                                                d['level'], d['new'], strict=True)]
+    marks = [Mark(d['x_m'], d['depth_m'] * MM, d['level'] or 'none',
+                  f'{d["level"] or "below AL"}{" NEW" if d["new"] else ""} at km '
+                  f'{d["km"]:.4f}: {d["depth_m"] * MM:+.2f} mm', bool(d['new']))
+             for d in line_defects(con, line, track, limits)]
     u, sd = f['u_m'] * MM, f['sd_m'] * MM
     return profile_svg(x, u, label=f'line {line} track {track}: fused profile',
                        band_mm=(u - 2 * sd, u + 2 * sd), marks=marks,
@@ -111,8 +109,8 @@ def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: st
             ax.plot(_dates(tt), mid * MM, color='tab:blue', label='trend (WLS)')
             ax.fill_between(_dates(tt), (mid - 1.96 * sd) * MM, (mid + 1.96 * sd) * MM,
                             color='tab:blue', alpha=0.2, lw=0, label='95 %')
-        for level, limit in zip(LEVELS, limits.at(np.array([speed_kmh / 3.6]))[0],
-                                strict=True):
+        for level, limit in zip(LEVELS, limits.at(np.array([1e3 * km]),
+                                                  np.array([speed_kmh / 3.6]))[0], strict=True):
             if np.isfinite(limit):
                 ax.axhline(limit * MM, color=LEVEL_COLOURS[level], ls='--', lw=1,
                            label=f'{level} {limit * MM:g} mm')
@@ -129,7 +127,8 @@ def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: st
 def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str,
                   limits: Limits) -> Path:
     """SD of the band-filtered profile per 200 m section, one line per pass (by date), with the
-    lower end of the EN 13848-5 SD alert range of each section's speed."""
+    lower end of the SD alert range of each section (``limits``: at its centre's km-post and
+    its pass's speed)."""
     rows = db.fetch(con, """SELECT s.pass_id, s.start_m, s.sd_m, s.speed_mps,
                                   strftime(p.start_time, '%Y-%m-%d') AS day
                            FROM segments s JOIN passes p USING (pass_id)
@@ -142,7 +141,7 @@ def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: 
         ax.plot(km, rows['sd_m'][pick] * MM, 'o-', ms=3, lw=0.8,
                 label=f'pass {pid} ({rows["day"][pick][0]})')
     if rows['start_m'].size:
-        alert = limits.sd_at(rows['speed_mps'])[:, 0]
+        alert = limits.sd_at(rows['start_m'] + SECTION_M / 2, rows['speed_mps'])[:, 0]
         order = np.argsort(rows['start_m'])
         ax.step((rows['start_m'][order] + SECTION_M / 2) / 1000, alert[order] * MM, where='mid',
                 color='tab:red', ls='--', lw=1, label='SD alert (lower end)')
@@ -214,6 +213,22 @@ def _plain(row: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def line_defects(con: duckdb.DuckDBPyConnection, line: str, track: str, limits: Limits
+                 ) -> list[dict[str, Any]]:
+    """The line's defects in km order, classed by ``limits`` (``condition.reclass``, as the
+    defects table), with their signed ``depth_m``."""
+    cur = con.execute("""SELECT defect_id, x_m, km, sign, depth_m, depth_sd_m, rate_mm_per_year,
+                                rate_se_mm_per_year, speed_kmh, level, next_level,
+                                next_limit_m, projected, projected_early, projected_late, new,
+                                first_seen, last_seen, passes, lat, lon
+                         FROM defects WHERE line = ? AND track = ? ORDER BY km""",
+                      [line, track])
+    names = [c[0] for c in cur.description]
+    rows = [reclass(dict(zip(names, r, strict=True)), limits) for r in cur.fetchall()]
+    return [{**{k: v for k, v in r.items() if k != 'sign'}, 'depth_m': r['sign'] * r['depth_m']}
+            for r in rows]
+
+
 def line_features(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
                   limits: Limits, geometry: Line | None) -> list[gis.Feature]:
     """The line's trace (its geometry over the fused profile's extent), its 200 m sections (the
@@ -236,7 +251,7 @@ def line_features(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: flo
                            QUALIFY row_number() OVER (PARTITION BY s.start_m
                                                       ORDER BY p.start_time DESC) = 1
                            ORDER BY s.start_m""", [line, track])
-    sd_range = limits.sd_at(sec['speed_mps'])
+    sd_range = limits.sd_at(sec['start_m'] + SECTION_M / 2, sec['speed_mps'])
     rows = [{**key, 'start_km': round(x / 1e3, 4), 'end_km': round((x + SECTION_M) / 1e3, 4),
              'start_m': float(x), 'length_m': SECTION_M,
              **_plain({'sd_m': float(sd), 'sd_alert_low_m': float(lo),
@@ -246,14 +261,8 @@ def line_features(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: flo
             for x, sd, c, v, pid, day, (lo, hi) in zip(
                 sec['start_m'], sec['sd_m'], sec['coverage'], sec['speed_mps'], sec['pass_id'],
                 sec['pass_date'], sd_range, strict=True)]
-    cur = con.execute("""SELECT defect_id, km, sign * depth_m AS depth_m, depth_sd_m,
-                                rate_mm_per_year, rate_se_mm_per_year, speed_kmh, level,
-                                next_level, next_limit_m, projected, projected_early,
-                                projected_late, new, first_seen, last_seen, passes, lat, lon
-                         FROM defects WHERE line = ? AND track = ? ORDER BY km""",
-                      [line, track])
-    names = [c[0] for c in cur.description]
-    defects = [dict(zip(names, r, strict=True)) for r in cur.fetchall()]
+    defects = [{k: v for k, v in d.items() if k != 'x_m'}
+               for d in line_defects(con, line, track, limits)]
     return [trace, *gis.section_features(positions, rows, start, end),
             *(gis.point_feature(d.pop('lat'), d.pop('lon'), {**key, **_plain(d)})
               for d in defects)]
@@ -264,9 +273,30 @@ STYLE = ('body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-c
          'th{background:#eee}img{max-width:100%}.note{font-size:.85em;color:#495057}')
 
 
-def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = False) -> Path:
-    """Write DIR/report.html, its PNGs and DIR/fleet.geojson atomically; returns the report's
-    path."""
+DEFECT_COLUMNS = ('defect_id', 'km', 'new', 'passes', 'depth_m', 'depth_sd_m', 'rate_mm_per_year',
+                  'rate_se_mm_per_year', 'speed_kmh', 'level', 'next_level', 'next_limit_m',
+                  'projected', 'projected_early', 'projected_late', 'first_seen')
+
+
+def defects_table(con: duckdb.DuckDBPyConnection, line: str, track: str, limits: Limits) -> str:
+    """The line's defects as an HTML table (lengths in mm), classed by ``limits``
+    (``condition.reclass``)."""
+    cur = con.execute(f'SELECT {", ".join(DEFECT_COLUMNS)} FROM defects WHERE line = ? AND '
+                      'track = ? ORDER BY km', [line, track])
+    rows = [reclass(dict(zip(DEFECT_COLUMNS, r, strict=True)), limits) for r in cur.fetchall()]
+    heads = [c.replace('_m', '_mm') if c.endswith('_m') else c for c in DEFECT_COLUMNS]
+    head = ''.join(f'<th>{escape(c)}</th>' for c in heads)
+    body = ''.join('<tr>' + ''.join(
+        f'<td>{escape(_cell(r[c] * MM if c.endswith("_m") and r[c] is not None else r[c]))}'
+        '</td>' for c in DEFECT_COLUMNS) + '</tr>' for r in rows)
+    return f'<table><tr>{head}</tr>{body}</table>'
+
+
+def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = False,
+                 table: LimitTable | None = None, line_speed: LineSpeed | None = None) -> Path:
+    """Write DIR/report.html, its PNGs and DIR/fleet.geojson atomically, the defects classed by
+    ``table`` (None: the standard's) and ``line_speed`` (None: by the measuring speed, the
+    fastest pass); returns the report's path."""
     con = db.connect(db_path, read_only=True)
     try:
         lines = con.execute('SELECT line, track, dx_m, band, geometry FROM lines '
@@ -276,7 +306,7 @@ def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = Fal
             parts = [f'<h1>Track condition: {escape(Path(db_path).name)}</h1>']
             features: list[gis.Feature] = []
             for line, track, dx, band, geometry in lines:
-                limits = en13848_limits(band)
+                limits = Limits(table or en13848_table(), band, line_speed)
                 slug = _slug(line, track)
                 found = line_features(con, line, track, dx, limits,
                                       line_from_json(geometry) if geometry else None)
@@ -294,12 +324,9 @@ def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = Fal
                           fused_profile(con, line, track, dx, limits),
                           '<h3>Defects (depth = mean-to-peak of the band-filtered profile; '
                           'rate by weighted least squares, SE from the per-pass SDs)</h3>',
-                          _table(con, """SELECT defect_id, round(km, 4) AS km, new, passes,
-                              depth_m * 1e3 AS depth_mm, depth_sd_m * 1e3 AS depth_sd_mm,
-                              rate_mm_per_year, rate_se_mm_per_year, speed_kmh, level,
-                              next_level, next_limit_m * 1e3 AS next_limit_mm, projected,
-                              projected_early, projected_late, first_seen FROM defects
-                              WHERE line = ? AND track = ? ORDER BY km""", [line, track]),
+                          f'<p>EN 13848-5 levels: {escape(limits.basis)}; limit table '
+                          f'{escape(limits.table.name)}.</p>',
+                          defects_table(con, line, track, limits),
                           f'<img src="{trends.name}" alt="defect trends">',
                           '<h3>Standard deviation per 200 m section</h3>',
                           f'<img src="{sections.name}" alt="200 m sections">']

@@ -82,6 +82,9 @@ class InversionConfig:
                         (0.0, 60.0))
     noise_std_mps2: float = _p(5e-3, 'kalman: accel noise std when the IMU covariance is '
                                      'absent or unknown, m/s^2', (1e-9, 10.0))
+    gyro_noise_std_rads: float = _p(5.5e-3, 'coach with pitch rate: gyro noise std at rate_hz, '
+                                           'rad/s (5.5e-3: 0.014 deg/s/sqrt(Hz) at 1 kHz)',
+                                    (1e-9, 10.0))
     track_spectrum_av: float = _p(4.032e-7, 'kalman: German spectrum amplitude A_v, m rad '
                                             '(4.032e-7 low, 1.080e-6 high)', (1e-12, 1e-3))
     bias_walk_mps2: float = _p(1e-6, 'kalman: accelerometer bias random walk, '

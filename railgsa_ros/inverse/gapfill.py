@@ -45,18 +45,23 @@ ERROR_BLOCKS = 200  # the error variance sums the gap in at most this many block
 RANK_TOLERANCE = 1e-9  # posterior eigenvalues below this fraction of the largest are dropped
 
 Taps = Callable[[float], np.ndarray]  # speed (m/s) -> zero-phase band FIR (2 d + 1,) at the rate
+#: (f (F,) Hz, speed m/s) -> the accelerometer's response (F,) per metre of profile: a model's
+#: ``track_response`` (the coach); None: the quarter car theta's G
+Response = Callable[[np.ndarray, float], np.ndarray]
 
 
-def acceleration_covariance(theta: np.ndarray, speed_mps: float, av: float, rate_hz: float
-                            ) -> np.ndarray:
-    """R(k / rate_hz) ((m/s^2)^2) of the car-body acceleration for lags k = 0 .. TABLE_S rate."""
+def acceleration_covariance(theta: np.ndarray, speed_mps: float, av: float, rate_hz: float,
+                            response: Response | None = None) -> np.ndarray:
+    """R(k / rate_hz) ((m/s^2)^2) of the car-body acceleration for lags k = 0 .. TABLE_S rate
+    (the vehicle: ``response`` when given, else the quarter car theta)."""
     n = fft.next_fast_len(int(2 * TABLE_S * rate_hz), real=True)
     f = fft.rfftfreq(n, 1.0 / rate_hz)
     w = 2 * np.pi * f[1:]
     omega = w / speed_mps
     s_t = av * OMEGA_C ** 2 / ((omega ** 2 + OMEGA_R ** 2) * (omega ** 2 + OMEGA_C ** 2))
     s_a = np.zeros(f.size)
-    s_a[1:] = np.abs(frequency_response(theta, 1j * w)) ** 2 * s_t / speed_mps
+    g = frequency_response(theta, 1j * w) if response is None else response(f[1:], speed_mps)
+    s_a[1:] = np.abs(g) ** 2 * s_t / speed_mps
     dw = 2 * np.pi * rate_hz / n
     return fft.irfft(s_a * dw, n)[:n // 2] * (n / 2)  # sum_k S_a(w_k) cos(w_k tau) dw
 
@@ -72,12 +77,15 @@ class GapFiller:
     the output error it causes at the outputs from sample ``first`` on (counted over the
     samples ``bridge`` released since the reset; ``error_variance``); the caller takes them
     away. ``hold``: accepted samples after a gap that its fill waits for (at least 1: the
-    sample that ended it).
+    sample that ended it). ``response``: the vehicle's accelerometer response instead of the
+    quarter car theta's (a coach).
     """
 
     def __init__(self, theta: np.ndarray, av: float, rate_hz: float, noise_var: float,
-                 taps: Taps | None = None, hold: int = 1) -> None:
+                 taps: Taps | None = None, hold: int = 1,
+                 response: Response | None = None) -> None:
         self.theta = np.asarray(theta, float)
+        self.response = response
         self.av = av
         self.rate_hz = rate_hz
         self.noise_var = noise_var
@@ -187,7 +195,7 @@ class GapFiller:
     def _covariance(self, speed: float) -> np.ndarray:
         if self._table is None or self._table[0] != speed:
             self._table = (speed, acceleration_covariance(self.theta, speed, self.av,
-                                                          self.rate_hz))
+                                                          self.rate_hz, self.response))
         return self._table[1]
 
     def _history(self) -> tuple[np.ndarray, np.ndarray]:

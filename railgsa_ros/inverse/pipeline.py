@@ -6,7 +6,9 @@ each (re)start -> method -> band FIR with a fixed delay of D samples. The output
 emitted when sample k + D has arrived and carries sample k's stamp and chainage.
 
 Methods (all run a bank of P parameter sets):
-- ``spectral``: the exact inverse 1/G(j w) folded into the band FIR, |BP|^2 / G: one FIR stage.
+- ``spectral``: the exact inverse 1/G(j w) folded into the band FIR, |BP|^2 / G: one FIR stage;
+  for a coach (``model=``) its LMMSE inverse from one or more channels (``design.py``), one
+  FIR per channel, summed (``channelsum.py``).
 - ``feedback``: Eq. 7 (exact FOH), then the band FIR; that order lets the band remove the drift of
   the marginally damped slow pole pair (+-j / sqrt(K)) and costs one shared FIR design.
 - ``kalman``: the steady-state Kalman filter (or, offline, the RTS smoother), then the band FIR.
@@ -22,12 +24,13 @@ design at the minimum speed (the longest impulse response) plus the anti-alias d
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
 import numpy as np
 
-from railgsa_ros.errors import ConfigError
+from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.inverse.band import (
     band_edges_hz,
     bandpass_power,
@@ -36,8 +39,19 @@ from railgsa_ros.inverse.band import (
     half_length,
     truncation_error,
 )
+from railgsa_ros.inverse.channelsum import ChannelSum
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
+from railgsa_ros.inverse.design import (
+    GRID_SPANS,
+    WINDOW_SPEED_TOLERANCE,
+    Observability,
+    WienerDesign,
+    channel_variances,
+    half_width,
+    model_theta,
+    tapered,
+)
 from railgsa_ros.inverse.feedback import FeedbackInverse, Stability
 from railgsa_ros.inverse.gapfill import GapFiller
 from railgsa_ros.inverse.kalman import KalmanInverse
@@ -50,6 +64,7 @@ from railgsa_ros.inverse.multirate import (
 )
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.inverse.sanitize import SMALL, SPEED_LIMIT_MPS, Clean, InputSanitizer
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 
@@ -59,6 +74,10 @@ WINDOW_TOLERANCE = 1e-3
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
+#: a coach's outputs are DEGRADED where the data leave more than this fraction of the band's
+#: truth variance unobserved (posterior / prior): the error std is then above a third of the
+#: band's RMS (correlation with the truth below 0.95), see docs/inversion.md, "Coach"
+UNOBSERVED_LIMIT = 0.1
 _VALID, _DEGRADED, _INVALID = int(Quality.VALID), int(Quality.DEGRADED), int(Quality.INVALID)
 
 
@@ -175,6 +194,11 @@ class InversionPipeline:
     ``nominal``: the vehicle theta (5,) whose band response sets the quality window
     (``window_half_width``; default: the widest of the bank), so that a bank and the nominal
     pipeline grade their outputs alike.
+
+    ``model``: a ``railgsa_ros.models`` vehicle; a coach inverts with its LMMSE design
+    (``design.py``; ``vehicle``, ``nominal``: its theta (n,) or (P, n), default its nominal)
+    from the data ``channels`` (``model.channels`` names, accelerometer first; the others come
+    as ``push(rates=...)``); None or a quarter car: the exact inverse 1/G of theta (5,).
     """
 
     _inv_g: np.ndarray | None  # 1/G on the design grid (computed at the first design)
@@ -183,12 +207,42 @@ class InversionPipeline:
                  vehicle: VehicleParams | np.ndarray | None = None,
                  noise_variance: float | None = None, *, start_chainage_m: float = 0.0,
                  stuck_s: float = 0.0, backward_reset_s: float = 1.0,
-                 nominal: np.ndarray | None = None) -> None:
+                 nominal: np.ndarray | None = None, model: VehicleModel | None = None,
+                 channels: Sequence[str] = ('accel_z',)) -> None:
         cfg = self.config = config if config is not None else InversionConfig()
-        theta = as_theta(vehicle if vehicle is not None else VehicleParams())
+        coach = None if model is None or model.kind == 'quarter_car' else model
+        if coach is None:
+            theta = as_theta(vehicle if vehicle is not None else
+                             VehicleParams() if model is None else model.theta)
+            self._nominal = None if nominal is None else np.atleast_2d(as_theta(nominal))
+        else:
+            theta = model_theta(coach, vehicle)
+            self._nominal = None if nominal is None else np.atleast_2d(
+                model_theta(coach, nominal))
         self._squeeze = theta.ndim == 1
         self.theta = np.atleast_2d(theta)
-        self._nominal = None if nominal is None else np.atleast_2d(as_theta(nominal))
+        accel_var = cfg.noise_std_mps2 ** 2 if noise_variance is None else float(noise_variance)
+        self._wiener = self._wiener_nominal = None
+        self.observability: Observability | None = None  #: a coach's unobserved band part
+        self.extra_channels = 0  #: rows of ``push(rates=...)``: the data channels after accel
+        if coach is not None:
+            if cfg.method != 'spectral':
+                raise ConfigError(f'method: {cfg.method} inverts the quarter car only; a coach '
+                                  'inverts with spectral (its LMMSE design)')
+            self.config = cfg = cfg.with_(window_speed_tolerance=min(
+                cfg.window_speed_tolerance, max(WINDOW_SPEED_TOLERANCE, 2 * cfg.speed_tolerance)))
+            variances = channel_variances(coach, channels, accel_var,
+                                          cfg.gyro_noise_std_rads ** 2)
+            self.extra_channels = len(channels) - 1
+            self._wiener = WienerDesign(coach, self.theta, channels, variances,
+                                        cfg.track_spectrum_av, cfg.rate_hz)
+            nominal_theta = self._nominal if self._nominal is not None else \
+                self.theta.mean(axis=0, keepdims=True)
+            self._wiener_nominal = self._wiener if np.array_equal(nominal_theta, self.theta) \
+                else WienerDesign(coach, nominal_theta, channels, variances,
+                                  cfg.track_spectrum_av, cfg.rate_hz)
+        self._extra: list[np.ndarray] = []  # extra channel columns (C - 1, N) not yet fed
+        self._last_extra = np.zeros(self.extra_channels)  # last finite value of each
         self.dt = 1.0 / cfg.rate_hz
         self.sanitizer = InputSanitizer(cfg.rate_hz, cfg.gap_factor, cfg.gap_policy,
                                         cfg.max_bridge_s, cfg.saturation_mps2,
@@ -206,7 +260,7 @@ class InversionPipeline:
                                         var, self.dt,
                                         cfg.speed_mps, cfg.speed_tolerance,
                                         cfg.min_design_speed_mps, cfg.max_speed_mps)
-        self._fir: PartitionedFir | MultirateFir | None = None
+        self._fir: PartitionedFir | MultirateFir | ChannelSum | None = None
         self.delay_samples = 0
         self._window = (0, 0, 1)  # significant half-width: fixed part, low-rate part at vmin, R
         self.decimation = 1
@@ -217,12 +271,18 @@ class InversionPipeline:
             self._fir = self._band_stage()
             self.switch_period = self._fir.switch_period
             self._design_speed = cfg.min_design_speed_mps
+            if self._wiener_nominal is not None:
+                self.observability = Observability(
+                    self._wiener_nominal, cfg.band, cfg.band_order, cfg.min_design_speed_mps,
+                    cfg.max_speed_mps, self._grid, self._half, self._rolloff)
         self._gap_taps: dict[float, np.ndarray] = {}  # design speed -> error FIR
         self._gaps = GapFiller(np.mean(self.theta, axis=0), cfg.track_spectrum_av, cfg.rate_hz,
                                cfg.noise_std_mps2 ** 2 if noise_variance is None
                                else float(noise_variance),
                                None if cfg.band == 'none' else self._error_taps,
-                               hold=round(cfg.gap_hold_s * cfg.rate_hz))
+                               hold=round(cfg.gap_hold_s * cfg.rate_hz),
+                               response=None if self._wiener_nominal is None
+                               else self._wiener_nominal.accel_response)
         self._chain: tuple[int, float, float] | None = None  # last stamp, chainage, speed
         self.start_chainage_m = float(start_chainage_m)  #: chainage of the first sample, m
         self._offline: list[tuple[np.ndarray, ...]] = []
@@ -272,13 +332,18 @@ class InversionPipeline:
     def push(self, stamps_ns: np.ndarray, acc_z: np.ndarray,
              speed_mps: np.ndarray | float | None = None,
              frame_ids: np.ndarray | None = None,
-             quality: np.ndarray | None = None) -> Output:
+             quality: np.ndarray | None = None, rates: np.ndarray | None = None) -> Output:
         """Feed samples: stamps (T,) int64 ns, upward specific force (T,) m/s^2 (+g at rest, see
         ``vertical``), speed (T,) or scalar m/s (None: ``config.speed_mps``), frame ids (T,),
         input quality (T,) :class:`Quality` codes (None: VALID) that the delay line carries to
-        each output (raised there for the warm-up, the tail and bridged input)."""
+        each output (raised there for the warm-up, the tail and bridged input); ``rates``:
+        the data channels after the accelerometer (``extra_channels`` rows, (T,) for one: the
+        pitch rate in rad/s), required exactly when the pipeline was built with them."""
         speed = self.config.speed_mps if speed_mps is None else speed_mps
+        extra = self._check_extra(rates, np.shape(acc_z)[0])
         clean = self.sanitizer.process(stamps_ns, acc_z, speed, frame_ids)
+        if extra is not None:
+            self._extra.append(self._extra_columns(extra, clean))
         if quality is None:
             q_clean = np.zeros(clean.accel.size, np.uint8)
         elif clean.index is None:  # every sample accepted in order
@@ -312,6 +377,41 @@ class InversionPipeline:
         return self.flush()
 
     # ----------------------------------------------------------------- internals
+    def _check_extra(self, rates: np.ndarray | None, count: int) -> np.ndarray | None:
+        """``rates`` as (C - 1, T) floats; InputError when they do not match the design."""
+        if rates is None and not self.extra_channels:
+            return None
+        if rates is None or not self.extra_channels:
+            raise InputError(f'rates: the inversion was designed for {self.extra_channels} '
+                             f'channel(s) after the accelerometer, got '
+                             f'{"none" if rates is None else "some"}')
+        extra = np.asarray(rates, dtype=float).reshape(-1, count) if count else \
+            np.zeros((self.extra_channels, 0))
+        if extra.shape[0] != self.extra_channels:
+            raise InputError(f'rates: expected {self.extra_channels} row(s) of {count} samples, '
+                             f'got shape {np.shape(rates)}')
+        return extra
+
+    def _extra_columns(self, extra: np.ndarray, clean: Clean) -> np.ndarray:
+        """The extra channels (C - 1, N) at the clean samples; bridged samples and non-finite
+        values hold the channel's last finite value (0 before any)."""
+        cols = extra if clean.index is None else np.where(
+            clean.index >= 0, extra[:, np.maximum(clean.index, 0)], np.nan)
+        ok = np.isfinite(cols)
+        if not ok.all():
+            last = np.maximum.accumulate(np.where(ok, np.arange(cols.shape[1]), -1), axis=1)
+            cols = np.where(last >= 0, np.take_along_axis(cols, np.maximum(last, 0), axis=1),
+                            self._last_extra[:, None])
+        if cols.shape[1]:
+            self._last_extra = cols[:, -1].copy()
+        return cols
+
+    def _take_extra(self, count: int) -> np.ndarray:
+        """The oldest ``count`` extra-channel columns queued by ``push`` (released in order)."""
+        queued = np.concatenate(self._extra, axis=1) if len(self._extra) > 1 else self._extra[0]
+        self._extra = [queued[:, count:]]
+        return queued[:, :count]
+
     def _band_power(self, speed: float) -> np.ndarray:
         """|BP|^2 (1, F) on the design grid at ``speed`` (held at min_design_speed_mps),
         advanced by ``sensor_delay_s``: the output at an IMU stamp is the track under the wheel
@@ -324,15 +424,19 @@ class InversionPipeline:
         return bp
 
     def _response(self, speed: float) -> np.ndarray:
-        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in."""
+        """Band response on the design grid at ``speed``: (1, F) or (P, F) with 1/G folded in,
+        for a coach (P C, F) with its LMMSE inverse (row p C + c: channel c of set p)."""
         bp = self._band_power(speed)
         if self.config.method != 'spectral':
             return bp
+        if self._wiener is not None:  # the coach's inverse depends on the speed (the delays)
+            return tapered(bp[:, None] * self._wiener.response(self._grid, speed),
+                           self._half).reshape(-1, self._grid.size)
         if self._inv_g is None:  # 1/G on the design grid does not depend on the speed
             self._inv_g = inverse_response(self.theta, self._grid)
         return bp * self._inv_g
 
-    def _band_stage(self) -> PartitionedFir | MultirateFir:
+    def _band_stage(self) -> PartitionedFir | MultirateFir | ChannelSum:
         """Band FIR designed at min_design_speed_mps (the longest impulse response), run at
         fs / R when R >= 2; sets ``decimation`` (R, 1 = single rate), ``band_taps`` (at that
         rate), ``delay_samples`` (input samples) and ``truncation_error``."""
@@ -342,14 +446,21 @@ class InversionPipeline:
         self.decimation = r if r >= 2 else 1
         vmin = cfg.min_design_speed_mps
         rate = cfg.rate_hz / self.decimation
-        periods = DESIGN_PERIODS
-        while True:  # the grid must hold the whole FIR twice over (no circular wrap)
+        periods: float = DESIGN_PERIODS
+        spans = 4  # the grid must hold the whole FIR twice over (no circular wrap)
+        if self._wiener is not None:  # the coach: a fixed span, cut from a longer response
+            self._half = half_width(vmin, rate)
+            spans = GRID_SPANS  # a grid that holds them at once
+            periods = max(periods, (spans * self._half + 2) * band_edges_hz(cfg.band, vmin)[0]
+                          / rate)
+        while True:
             self._grid = design_grid(rate, band_edges_hz(cfg.band, vmin)[0], periods)
             self._rolloff = rolloff(self._grid, f_top, rate) if self.decimation > 1 else 1.0
             self._inv_g = None
             response = self._response(vmin)
-            self._half = half_length(response, cfg.fir_tolerance)  # band FIR delay, low samples
-            if 4 * self._half + 2 <= 2 * (self._grid.size - 1):
+            if self._wiener is None:
+                self._half = half_length(response, cfg.fir_tolerance)  # delay, low samples
+            if spans * self._half + 2 <= 2 * (self._grid.size - 1):
                 break
             if self._grid.size > MAX_DESIGN_BINS:
                 span = 2 * (self._grid.size - 1)
@@ -360,20 +471,27 @@ class InversionPipeline:
         taps = fir_taps(response, self._half)
         self.band_taps = taps.shape[-1]
         self.truncation_error = truncation_error(taps, response)
-        channels = self.theta.shape[0]
+        channels = self.theta.shape[0] * (self.extra_channels + 1)
         graded = response
-        if self._nominal is not None and cfg.method == 'spectral':
+        if self._wiener_nominal is not None:
+            graded = tapered(self._band_power(vmin)[:, None] * self._wiener_nominal.response(
+                self._grid, vmin), self._half).reshape(-1, self._grid.size)
+        elif self._nominal is not None and cfg.method == 'spectral':
             graded = self._band_power(vmin) * inverse_response(self._nominal, self._grid)
         significant = half_length(graded, max(WINDOW_TOLERANCE, cfg.fir_tolerance))
+        fir: PartitionedFir | MultirateFir
         if self.decimation == 1:
             self.delay_samples = self._half
             self._window = (0, significant, 1)
-            return PartitionedFir(taps, channels)
-        antialias = antialias_taps(cfg.rate_hz, self.decimation, f_top, cfg.fir_tolerance)
-        fir = MultirateFir(taps, channels, self.decimation, antialias,
-                           rate_dtype(cfg.fir_tolerance, self._stage is None))
-        self.delay_samples = self.decimation * self._half + 2 * fir.half_delay
-        self._window = (2 * fir.half_delay, significant, self.decimation)
+            fir = PartitionedFir(taps, channels)
+        else:
+            antialias = antialias_taps(cfg.rate_hz, self.decimation, f_top, cfg.fir_tolerance)
+            fir = MultirateFir(taps, channels, self.decimation, antialias,
+                               rate_dtype(cfg.fir_tolerance, self._stage is None))
+            self.delay_samples = self.decimation * self._half + 2 * fir.half_delay
+            self._window = (2 * fir.half_delay, significant, self.decimation)
+        if self.extra_channels:  # one FIR per data channel, summed
+            return ChannelSum(fir, self.theta.shape[0], self.extra_channels + 1)
         return fir
 
     def _error_taps(self, speed: float) -> np.ndarray:
@@ -386,9 +504,15 @@ class InversionPipeline:
             grid = design_grid(cfg.rate_hz, band_edges_hz(cfg.band, v)[0], DESIGN_PERIODS)
             lo, hi = band_edges_hz(cfg.band, v)
             theta = self._nominal if self._nominal is not None else np.mean(self.theta, axis=0)
-            response = bandpass_power(grid, lo, hi, cfg.band_order) * \
-                inverse_response(theta, grid)[0]
-            self._gap_taps = {v: fir_taps(response, half_length(response, cfg.fir_tolerance))}
+            if self._wiener_nominal is None:
+                response = bandpass_power(grid, lo, hi, cfg.band_order) * \
+                    inverse_response(theta, grid)[0]
+                half = half_length(response, cfg.fir_tolerance)
+            else:  # the coach: its accelerometer's FIR, as the band stage cuts it
+                half = half_width(cfg.min_design_speed_mps, cfg.rate_hz)
+                response = tapered(bandpass_power(grid, lo, hi, cfg.band_order)
+                                   * self._wiener_nominal.response(grid, v)[0, 0], half)
+            self._gap_taps = {v: fir_taps(response, half)}
         return self._gap_taps[v]
 
     def _start_segment(self) -> None:
@@ -398,7 +522,7 @@ class InversionPipeline:
         self._meta_start = 0  # segment index of the oldest sample in the delay line
         self._bridged = np.zeros(0, np.int64)  # segment indices of bridged samples still seen
         self._last_real = np.iinfo(np.int64).max  # segment index of the last real sample (at end)
-        self._last_a = 0.0
+        self._last_a: float | np.ndarray = 0.0  # last input (C, 1) with extra channels
         self._bias = (0.0, 0)  # running sum (m/s^2) and count of the segment's samples
         self._offset: np.ndarray | None = None  # first method output of the segment (P, 1)
         self._gap_var: list[tuple[int, np.ndarray]] = []  # (first segment index, variance m^2)
@@ -425,13 +549,15 @@ class InversionPipeline:
         a_s = accel - cfg.gravity_mps2
         if cfg.remove_bias:
             a_s = self._remove_bias(a_s)
+        if self.extra_channels:  # the data channels after the accelerometer: rows 1..
+            a_s = np.vstack([a_s, self._take_extra(a_s.size)])
         n0 = self._n + sum(x[0].size for x in self._offline)
         self._gap_var += self._gaps.errors  # (first segment index, variance)
         self._gaps.errors = []
         ramp = round(cfg.taper_s * cfg.rate_hz)
         if n0 < ramp:  # fade-in still running
-            a_s = a_s * taper(n0 + np.arange(a_s.size), ramp)
-        self._last_a = float(a_s[-1])
+            a_s = a_s * taper(n0 + np.arange(a_s.shape[-1]), ramp)
+        self._last_a = a_s[:, -1:] if self.extra_channels else float(a_s[-1])
         emit = ~synthetic
         if cfg.smoother:
             self._offline.append((a_s, stamps, chain, speed, emit, quality))
@@ -497,7 +623,7 @@ class InversionPipeline:
         if bridged.size and self._last_real == np.iinfo(np.int64).max:  # not the end pad
             self._bridged = np.concatenate([self._bridged, n0 + bridged])
         per = self.switch_period
-        bounds = np.arange(-(-n0 // per) * per, n0 + a_s.size, per)  # segment sample indices
+        bounds = np.arange(-(-n0 // per) * per, n0 + a_s.shape[-1], per)  # segment indices
         outs = []
         lo = 0
         while True:
@@ -505,10 +631,10 @@ class InversionPipeline:
             if bounds.size:
                 v_kf, v_band = self._targets(bounds)
                 due = np.flatnonzero(np.isfinite(v_kf) | np.isfinite(v_band))
-            b = int(bounds[due[0]]) - n0 if due.size else a_s.size
+            b = int(bounds[due[0]]) - n0 if due.size else a_s.shape[-1]
             if b > lo:
                 x = u[:, lo:b] if u is not None else (
-                    a_s[lo:b] if self._stage is None else self._stage.process(a_s[lo:b]))
+                    a_s[..., lo:b] if self._stage is None else self._stage.process(a_s[lo:b]))
                 if self._offset is None:
                     self._offset = np.atleast_2d(x)[:, :1].copy()
                 outs.append(self._band(np.atleast_2d(x) - self._offset))
@@ -568,6 +694,13 @@ class InversionPipeline:
         keep = slice(None) if every else emit  # no bridged samples: views, no copies
         self._counters['emitted'] += count if every else int(emit.sum())
         quality = self._window_quality(first, quality, speed)
+        if self.observability is not None and count:  # a coach: where the data are blind,
+            # or the design held at min_design_speed_mps / max_speed_mps has the wrong delays
+            cfg, v = self.config, np.abs(speed)
+            blind = (self.observability.fraction(speed) > UNOBSERVED_LIMIT) | (
+                v < cfg.min_design_speed_mps * (1 - cfg.window_speed_tolerance)) | (
+                v > cfg.max_speed_mps * (1 + cfg.window_speed_tolerance))
+            quality = np.maximum(quality, np.where(blind, _DEGRADED, _VALID)).astype(np.uint8)
         gap_std = np.sqrt(self._gap_variance(first, count)) if self._gap_var else \
             np.zeros(count)
         return Output(stamps[keep], chain[keep], z[:, t_len - count:][:, keep], quality[keep],

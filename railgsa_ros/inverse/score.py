@@ -18,6 +18,7 @@ from scipy import fft
 from railgsa_ros.inverse.band import band_limits, bandpass_power
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output, vertical
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.scenario import Run
 from railgsa_ros.vehicle import VehicleParams, frequency_response
 
@@ -90,11 +91,14 @@ def score(chainage_rec: np.ndarray, u_rec: np.ndarray, chainage_true: np.ndarray
 
 def reconstruct(run: Run, config: InversionConfig | None = None,
                 keep: np.ndarray | None = None, sensor_delay_s: float = 0.0,
-                vehicle: VehicleParams | np.ndarray | None = None
+                vehicle: VehicleParams | np.ndarray | None = None, *,
+                model: VehicleModel | None = None, pitch_rate: bool = True
                 ) -> tuple[np.ndarray, Output]:
     """Pipeline output over the run's samples ``keep`` (bool mask, None: all; odometry = the
     true speed; ``vehicle``: the parameters the inversion assumes, None: nominal; rate_hz: the
-    run's) and its chainage on the truth's axis (m).
+    run's) and its chainage on the truth's axis (m). ``model``: the vehicle model the
+    inversion assumes (a coach: its LMMSE design; ``vehicle`` then its theta), with the run's
+    gyro pitch rate when it has one and ``pitch_rate``.
 
     ``sensor_delay_s`` plays a sensor whose causal filter delays the signal by that much (the
     simulator's filter is delay-compensated): every sample is stamped that much after the
@@ -103,10 +107,15 @@ def reconstruct(run: Run, config: InversionConfig | None = None,
     """
     keep = np.ones(run.stamps_ns.size, bool) if keep is None else keep
     config = (config if config is not None else InversionConfig()).with_(rate_hz=run.rate_hz)
-    pipe = InversionPipeline(config, vehicle, noise_variance=run.accel_covariance)
+    gyro = run.gyro is not None and pitch_rate and model is not None and model.kind == 'coach'
+    if gyro:
+        config = config.with_(gyro_noise_std_rads=float(np.sqrt(run.gyro_covariance)))
+    pipe = InversionPipeline(config, vehicle, noise_variance=run.accel_covariance, model=model,
+                             channels=('accel_z', 'pitch_rate') if gyro else ('accel_z',))
     stamps = run.stamps_ns[keep] + np.int64(round(sensor_delay_s * 1e9))
-    out = Output.concat([pipe.push(stamps, vertical(run.accel[keep], 'z'), run.speed_mps[keep]),
-                         pipe.flush()])
+    rates = {'rates': run.gyro[keep, 1]} if gyro and run.gyro is not None else {}
+    out = Output.concat([pipe.push(stamps, vertical(run.accel[keep], 'z'), run.speed_mps[keep],
+                                   **rates), pipe.flush()])
     t0 = run.t_true_s[keep][0] + sensor_delay_s
     return out.chainage_m + np.interp(t0, run.t_true_s, run.chainage_m), out
 

@@ -8,8 +8,8 @@ REP 145 as a consumer: linear acceleration is specific force in the sensor frame
 gravity (+9.81 m/s^2 on z at rest, z up), passed on unchanged; the core removes gravity and bias.
 The covariance is passed on as sent (9 values); the input policy applies REP 145 to it (element
 0 equal to -1 or NaN: the acceleration is absent; all zeros: unknown). A message that cannot be
-read (truncated, garbage), or that has a zero or negative stamp, nanoseconds >= 1e9 or an empty
-frame_id is *malformed*: counted and left out, never raised.
+read (truncated, garbage), or that has a zero or negative stamp, nanoseconds >= 1e9, an empty
+frame_id or a string over ``cdr.MAX_STRING`` is *malformed*: counted and left out, never raised.
 """
 
 from __future__ import annotations

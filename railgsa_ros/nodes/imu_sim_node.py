@@ -5,7 +5,8 @@ sample whose stamp is due on the node clock: wall time, or ``/clock`` with ``use
 Stamps are the run's sensor stamps shifted so that the first sample falls on the first tick.
 Messages are the same CDR bytes as in a bag (``bag.RunEncoder``), published raw.
 
-Topics: ``imu/data`` (sensor_msgs/Imu, BEST_EFFORT, depth 1 s of samples), ``odom``
+Topics: ``imu/data`` (sensor_msgs/Imu, BEST_EFFORT, depth 1 s of samples; a coach file's
+further IMUs on ``imu/<name>/data``), ``odom``
 (nav_msgs/Odometry) and ``track/irregularity_truth`` (geometry_msgs/PointStamped), RELIABLE;
 ``/diagnostics`` once a second (samples published, rate).
 """
@@ -48,7 +49,9 @@ SPECS = (
     ParamSpec('sensor', 'adxl355', 'IMU model preset', choices=tuple(PRESETS), read_only=True),
     ParamSpec('seed', 0, 'random seed of track and sensor', bounds=(0, 2**31 - 1),
               read_only=True),
-    ParamSpec('vehicle_file', '', 'vehicle YAML (empty: the paper Table 1)', read_only=True),
+    ParamSpec('vehicle_file', '', 'vehicle YAML, quarter car or coach (model: coach; a coach\'s '
+              'pitch rate goes to angular_velocity.y when the sensor has a gyro); empty: the '
+              'paper Table 1', read_only=True),
     ParamSpec('odom_rate_hz', 50.0, 'odometry rate, Hz', bounds=(0.1, 1000.0), read_only=True),
     ParamSpec('publish_period_s', 0.01, 'timer period; each tick publishes every sample due, s',
               bounds=(0.001, 0.5), read_only=True),
@@ -75,6 +78,9 @@ class ImuSimNode(Node):
             'truth': self.create_publisher(PointStamped, 'track/irregularity_truth',
                                            output_qos(depth)),
         }
+        for name in self.encoder.imu_names:  # a coach file's further IMUs
+            self._pubs[f'imu:{name}'] = self.create_publisher(Imu, f'imu/{name}/data',
+                                                              sensor_qos(depth))
         self.offset_ns: int | None = None
         self.published = 0
         self._timer = self.create_timer(p['publish_period_s'], self._tick)

@@ -8,6 +8,9 @@ record, keeps every complete record (chunks only when their CRC, where stored, m
 decompress), stops at the cut, rewrites the file as a complete MCAP (the original is kept as
 ``NAME.mcap.orig``) and writes ``metadata.yaml`` for all the bag's files. Finished files are
 left as they are. The recorder's ``*.mcap.partial`` files (a write error) are recovered too.
+A file with nothing to keep (0 bytes, no complete message) or that cannot be read (not MCAP,
+a damaged summary, an I/O error) is set aside as ``NAME.mcap.orig`` and left out of
+``metadata.yaml``: the rest of the recording is kept.
 """
 
 from __future__ import annotations
@@ -45,14 +48,16 @@ _DAMAGED = (McapError, CRCValidationError, ZstdError, ValueError, RuntimeError, 
 @dataclass
 class FileReport:
     """What recovery did with one storage file: ``status`` is finished (left alone),
-    recovered (rewritten from its complete records) or empty (nothing to keep); messages
-    kept, complete chunks dropped for a CRC or decompression failure, bytes after the cut."""
+    recovered (rewritten from its complete records), empty (no complete message: set aside)
+    or unreadable (set aside, ``reason`` says why); messages kept, complete chunks dropped for
+    a CRC or decompression failure, bytes after the cut."""
 
     name: str
     status: str
     messages: int
     bad_chunks: int = 0
     cut_bytes: int = 0
+    reason: str = ''
 
 
 @dataclass
@@ -72,7 +77,10 @@ def recover_bag(path: str | Path) -> list[FileReport]:
     it when it is neither. Returns one report per storage file, in file order."""
     path = Path(path)
     if path.is_file() and path.suffix == '.mcap':  # a bare file: rewritten, no metadata.yaml
-        return [_recover_file(path)]
+        report = _recover_file(path)
+        if report.status == 'empty':
+            raise InputError(f'{path}: no complete message: nothing to recover')
+        return [report]
     if not path.is_dir():
         raise InputError(f'{path}: not a bag directory or .mcap file')
     candidates = sorted([*path.glob('*.mcap'), *path.glob('*.mcap.partial')], key=_file_order)
@@ -81,15 +89,32 @@ def recover_bag(path: str | Path) -> list[FileReport]:
     reports, segments = [], []
     topics: dict[str, tuple[str, list, str, int]] = {}  # name -> type, QoS, type hash, count
     for file in candidates:
-        report = _recover_file(file)
+        try:
+            report = _recover_file(file)
+            if report.status != 'empty':
+                segments.append(_segment(path / report.name, topics))
+        except (InputError, OSError, *_DAMAGED) as exc:
+            reason = str(exc).removeprefix(f'{file}: ') if isinstance(exc, InputError) \
+                else ' '.join(str(exc).split())[:120] or type(exc).__name__
+            report = FileReport(file.name.removesuffix('.partial'), 'unreadable', 0,
+                                reason=reason)
+        if report.status in ('empty', 'unreadable'):
+            _set_aside(file)
         reports.append(report)
-        target = path / report.name
-        if report.status != 'empty':
-            segments.append(_segment(target, topics))
+    if not segments:
+        raise InputError(f'{path}: no readable message in any file ('
+                         + '; '.join(f'{r.name}: {r.status}' for r in reports) + ')')
     write_metadata(path, segments, [
         topic_entry(name, msgtype, qos, type_hash, count)
         for name, (msgtype, qos, type_hash, count) in topics.items()])
     return reports
+
+
+def _set_aside(file: Path) -> None:
+    """Rename a file with nothing readable ``NAME.mcap.orig``: readers refuse a bag holding an
+    unfinished .mcap, and the original is kept for whoever wants to look at it."""
+    if file.exists():
+        file.rename(file.with_name(file.name.removesuffix('.partial') + _ORIGINAL))
 
 
 def _file_order(file: Path) -> tuple[int, str]:
@@ -103,6 +128,8 @@ def _recover_file(file: Path) -> FileReport:
     name = file.name.removesuffix('.partial')
     if file.suffix == '.mcap' and mcap_finished(file):
         return FileReport(name, 'finished', _message_count(file))
+    if file.stat().st_size == 0:
+        return FileReport(name, 'empty', 0)
     salvage = _salvage(file)
     if not salvage.messages:
         return FileReport(name, 'empty', 0, salvage.bad_chunks, salvage.cut_bytes)

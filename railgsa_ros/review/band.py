@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from railgsa_ros.review.grid import cells_between
-from railgsa_ros.review.limits import Limits
+from railgsa_ros.standards.en13848 import Limits
+from railgsa_ros.standards.sampling import cells_between
 from railgsa_ros.uncertainty.stream import band_statistics, deviation_bound
 from railgsa_ros.uncertainty.surrogate import Design
 
@@ -55,7 +55,7 @@ class KeptBand:
         bound = deviation_bound(self.design, bank_u_m, sensor_std_m) * SAFETY
         with np.errstate(invalid='ignore'):
             reach = np.maximum(np.abs(u_m), np.abs(mean_m) + bound)
-            need |= np.any(reach[:, None] > self.limits.at(speed_mps), axis=1)
+            need |= np.any(reach[:, None] > self.limits.at(chainage_m, speed_mps), axis=1)
         lower, upper = np.full(c.size - 1, np.nan), np.full(c.size - 1, np.nan)
         lower[need], _, upper[need] = band_statistics(self.design, self.quantiles,
                                                       bank_u_m[:, need], sensor_std_m[need])

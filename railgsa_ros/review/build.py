@@ -14,14 +14,14 @@ from railgsa_ros.fileio import atomic_output
 from railgsa_ros.review import figures
 from railgsa_ros.review.exceedances import Exceedance, listed
 from railgsa_ros.review.figures import ZOOM_M
-from railgsa_ros.review.limits import en13848_limits
 from railgsa_ros.review.outputs import write_outputs
 from railgsa_ros.review.report import render_html
 from railgsa_ros.review.results import Review, ReviewOptions
-from railgsa_ros.review.sections import grid_sections, section_sd
 from railgsa_ros.review.stream import run_stream
 from railgsa_ros.review.truth import DX_M, check_truth, compare, truth_on_grid
 from railgsa_ros.review.worst import plot_worst, worst_surrogate
+from railgsa_ros.standards.en13848 import Limits, en13848_table
+from railgsa_ros.standards.sections import grid_sections, section_sd
 
 REPORT = 'report.html'
 Progress = Callable[[str, float], None]  # (stage, fraction done)
@@ -36,7 +36,8 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
     timings: dict[str, float] = {}
     start = time.perf_counter()
     tick('reading', 0.0)
-    limits = en13848_limits(options.config.inversion.band, options.limit_end)
+    limits = Limits(options.limits or en13848_table(options.limit_end),
+                    options.config.inversion.band, options.line_speed)
     truth = check_truth(options.truth) if options.truth is not None else None
     source = options.source  # one Source: it reads the bag's index once
     total = max(source.count(options.imu_topic), 1)
@@ -60,7 +61,7 @@ def build_review(options: ReviewOptions, progress: Progress | None = None) -> Re
         worst = worst_surrogate(run.design, run.worst, cfg)
     timings['analyse'] = time.perf_counter() - mark
     kept = listed(run.exceedances, options.min_probability)
-    return Review(options, cfg, run, run.health, limits, kept, sections,
+    return Review(options, cfg, run, run.health, run.limits, kept, sections,
                   truth_sections, comparison, worst, timings)
 
 

@@ -26,7 +26,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from railgsa_ros.review.limits import LEVELS, Limits
+from railgsa_ros.standards.en13848 import LEVELS, Limits, level_of
 from railgsa_ros.uncertainty.exceedance import exceedance_probability
 from railgsa_ros.uncertainty.surrogate import Design
 
@@ -74,13 +74,6 @@ def magnitudes(u: np.ndarray, lower: np.ndarray | None = None,
     return near, np.maximum(np.abs(lo), np.abs(hi))
 
 
-def levels(magnitude: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
-    """Highest level passed per sample (K,): 0 none, 1 AL, 2 IL, 3 IAL; NaN limits never pass."""
-    with np.errstate(invalid='ignore'):
-        passed = magnitude[:, None] > thresholds
-    return np.max(np.where(passed, np.arange(1, 4), 0), axis=1, initial=0)
-
-
 _LIMITS = ('al', 'il', 'ial')
 
 
@@ -107,11 +100,11 @@ class ExceedanceTracker:
         """Samples (K,) (bank outputs (P, K) with a design); returns the exceedances that ended
         before them."""
         u = np.asarray(u_m, dtype=float)
-        thresholds = self.limits.at(speed_mps)
+        thresholds = self.limits.at(chainage_m, speed_mps)
         near, far = magnitudes(u, lower_m, upper_m)
-        lvl_far = levels(far, thresholds)
+        lvl_far = level_of(far, thresholds)
         sel = np.flatnonzero(lvl_far > 0)  # near <= |u| <= far: elsewhere nothing passes
-        lvl_c, lvl_near = (levels(m[sel], thresholds[sel]) for m in (np.abs(u), near))
+        lvl_c, lvl_near = (level_of(m[sel], thresholds[sel]) for m in (np.abs(u), near))
         cols = {'index': self._seen + sel, 'chainage': np.asarray(chainage_m, float)[sel],
                 'stamp': np.asarray(stamps_ns)[sel], 'u': u[sel], 'far': far[sel],
                 'lvl_c': lvl_c, 'lvl_near': lvl_near, 'lvl_far': lvl_far[sel],

@@ -14,11 +14,11 @@ import numpy as np
 from railgsa_ros.envelope import envelope
 from railgsa_ros.location import Reference
 from railgsa_ros.review.exceedances import Exceedance
-from railgsa_ros.review.grid import Grid
 from railgsa_ros.review.health import InputHealth
-from railgsa_ros.review.limits import LEVELS, Limits
-from railgsa_ros.review.sections import Sections
 from railgsa_ros.review.truth import Comparison
+from railgsa_ros.standards.en13848 import LEVELS, Limits
+from railgsa_ros.standards.sampling import Grid
+from railgsa_ros.standards.sections import Sections
 from railgsa_ros.uncertainty import Sensitivity
 from railgsa_ros.uq.plots import draw_histogram
 
@@ -128,7 +128,7 @@ def loosest_limits(grid: Grid, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
     """(chainage (B,) m, limits (B, 3) m) per envelope bin of the grid: the limits fall with
     speed, so those of the bin's slowest sample (the loosest)."""
     xe, slowest, _ = envelope(grid.x_m, grid.speed_mps)
-    return xe, limits.at(slowest)
+    return xe, limits.at(xe, slowest)
 
 
 def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exceedance],
@@ -175,7 +175,7 @@ def plot_closeups(path: Path, grid: Grid, limits: Limits, centres: Sequence[floa
             ax.fill_between(g.x_m, g.lower_m * MM, g.upper_m * MM, color=BAND_COLOUR, alpha=0.5,
                             lw=0, label=_band_label(quantiles))
         ax.plot(g.x_m, g.u_m * MM, color=LINE_COLOUR, lw=1.0, label='reconstruction')
-        _limit_lines(ax, g.x_m, limits.at(g.speed_mps))
+        _limit_lines(ax, g.x_m, limits.at(g.x_m, g.speed_mps))
         ax.set_title(title, fontsize=9)
         ax.set_xlabel('chainage [m]')
         ax.set_ylabel('mm')
@@ -197,7 +197,7 @@ def plot_sections(path: Path, sections: Sections, limits: Limits, reference: Ref
                 ha='center', va='center', transform=ax.transAxes)
         ax.set_axis_off()
         return _save(fig, path)
-    sd_range = limits.sd_at(sections.speed_mps) * MM
+    sd_range = limits.sd_at(sections.start_m + sections.length_m / 2, sections.speed_mps) * MM
     sd = sections.sd_m * MM
     sd_range[np.isnan(sd)] = np.nan
     colour = np.where(sd > sd_range[:, 1], LEVEL_COLOURS['IAL'],

@@ -71,7 +71,7 @@ def defect_rows(review: Review) -> list[dict[str, Any]]:
 def section_rows(review: Review) -> list[dict[str, Any]]:
     """One dict per section with its SD (chainage order)."""
     s, ref = review.sections, review.location.reference
-    sd_range = review.limits.sd_at(s.speed_mps) * MM
+    sd_range = review.limits.sd_at(s.start_m + s.length_m / 2, s.speed_mps) * MM
     rows = []
     for i in range(len(s)):
         start, end = float(s.start_m[i]), float(s.start_m[i] + s.length_m)
@@ -160,6 +160,8 @@ def summary(review: Review, report: Path) -> dict[str, Any]:
         'exceedances': {level: {c: n for c, n in counts.items()}
                         for level, counts in _counts(review).items()},
         'exceedances_text': describe_counts(review.exceedances),
+        'limits': {'table': review.limits.table.name, 'band': review.limits.band,
+                   'basis': review.limits.basis},
         'worst_defect': worst_row,
         'sections': {'count': int(np.sum(np.isfinite(sd))),
                      'max_sd_mm': _number(float(np.nanmax(sd)) * MM, 4)

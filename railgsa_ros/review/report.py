@@ -17,8 +17,8 @@ from railgsa_ros import __version__
 from railgsa_ros.gis import Feature, sd_class
 from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level, describe_counts
 from railgsa_ros.review.figures import loosest_limits
-from railgsa_ros.review.limits import CLASS_UPPER_KMH, LEVELS, SOURCE, class_label
 from railgsa_ros.review.results import Review
+from railgsa_ros.standards.en13848 import LEVELS, SOURCE, LimitTable
 from railgsa_ros.svg_views import CSS as SVG_CSS
 from railgsa_ros.svg_views import MAP_LEGEND, SCRIPT, Mark, map_svg, profile_legend, profile_svg
 
@@ -66,13 +66,13 @@ def _figure(names: dict[str, str], key: str, alt: str) -> str:
     return f'<img src="{escape(names[key])}" alt="{escape(alt)}">' if key in names else ''
 
 
-def _speed_classes(class_counts: np.ndarray) -> str:
-    """'80 < v <= 120 km/h (100 %)' for the classes met, by share of samples (counts per
-    class, the last one beyond the table)."""
+def _speed_classes(class_counts: np.ndarray, table: LimitTable) -> str:
+    """'80 < v <= 120 km/h (100 %)' for the speed ranges met, by share of samples (counts per
+    range, the last one beyond the table)."""
     values = np.flatnonzero(class_counts)
     order = values[np.argsort(-class_counts[values], kind='stable')]
     labels = [*range(class_counts.size - 1), -1]
-    return ', '.join(f'{class_label(labels[i])} ({100 * class_counts[i] / class_counts.sum():.0f}'
+    return ', '.join(f'{table.label(labels[i])} ({100 * class_counts[i] / class_counts.sum():.0f}'
                      ' %)' for i in order)
 
 
@@ -107,7 +107,8 @@ def _summary(review: Review) -> str:
         _card('run', f'{length / 1e3:.2f} km in {review.duration_s:.1f} s'),
         _card('speed', (f'{np.min(v):.0f}' if np.ptp(v) < 0.5 else
                         f'{np.min(v):.0f}-{np.max(v):.0f} (mean {np.mean(v):.0f})')
-              + f' km/h; class {escape(_speed_classes(run.class_counts))}'),
+              + f' km/h; class {escape(_speed_classes(run.class_counts, review.limits.table))} '
+              f'({escape(review.limits.basis)})'),
         _card('worst defect', worst),
         _card('EN 13848-5 exceedances', exc),
         _card(f'SD per {review.sections.length_m:g} m',
@@ -132,10 +133,11 @@ def _summary(review: Review) -> str:
 
 def _limits_section(review: Review, names: dict[str, str]) -> str:
     lim = review.limits
-    rows = [[class_label(i), *(_mm(x, 0) for x in lim.isolated_m[i]),
-             f'{_mm(lim.sd_range_m[i, 0], 1)}-{_mm(lim.sd_range_m[i, 1], 1)}']
-            for i in range(CLASS_UPPER_KMH.size)]
-    table = _table(['speed class', 'AL [mm]', 'IL [mm]', 'IAL [mm]', 'SD alert range [mm]'],
+    isolated, sd_range = lim.table.rows(lim.band)
+    rows = [[lim.table.label(i), *(_mm(x, 0) for x in isolated[i]),
+             f'{_mm(sd_range[i, 0], 1)}-{_mm(sd_range[i, 1], 1)}']
+            for i in range(lim.table.upper_kmh.size)]
+    table = _table(['speed range', 'AL [mm]', 'IL [mm]', 'IAL [mm]', 'SD alert range [mm]'],
                    rows)
     counts = count_by_level(review.exceedances)
     count_rows = [[level, *(str(counts[level][c]) for c in CONFIDENCES)]
@@ -160,21 +162,21 @@ def _limits_section(review: Review, names: dict[str, str]) -> str:
                  + (f'; listed when P or P(AL) >= {review.options.min_probability:g} or the '
                     'reconstruction passes the alert limit.'
                     if review.options.min_probability > 0 else '.'))
-    why = ('the strictest an infrastructure manager may choose: a screening of a reconstruction '
-           'should rather flag early than miss a defect' if lim.end == 'lower'
-           else 'the most lenient')
     return f'''<h2>1. Irregularity and EN 13848-5 isolated defects</h2>
 {_figure(names, 'overview', 'irregularity over chainage')}
 {_figure(names, 'closeups', 'close-ups of the worst defects')}
 <p class=note>Mean-to-peak values of the {lim.band.upper()} band-filtered reconstruction against
-the limits of the speed class at each sample (speed from odometry). AL and IL are ranges in the
-standard; this report uses their <b>{lim.end}</b> end ({why}). Values: {escape(SOURCE)}.
+the limits of the speed range at each sample: <b>{escape(lim.basis)}</b>. Limit table:
+<b>{escape(lim.table.name)}</b> (AL and IL are ranges in the standard, within which the
+infrastructure manager chooses; the default takes their lower end, the strictest: a screening
+of a reconstruction should rather flag early than miss a defect). Standard values:
+{escape(SOURCE)}.
 {band_note}</p>
 {_table(['level', *CONFIDENCES], count_rows)}
 {_table(['level', 'confidence', 'km', 'from [m]', 'to [m]', 'peak at [m]', 'peak [mm]',
          'band at peak [mm]', 'limit [mm]', 'speed [km/h]', 'P', 'P(AL)'], exc_rows,
         left=2)}{more}
-<details><summary>Limits used ({lim.band.upper()}, {lim.end} end of the ranges) [M]</summary>
+<details><summary>Limits used ({lim.band.upper()}, {escape(lim.table.name)}) [M]</summary>
 {table}</details>'''
 
 
@@ -184,7 +186,7 @@ def _probability(p: float) -> str:
 
 def _sections_section(review: Review, names: dict[str, str]) -> str:
     s, truth = review.sections, review.truth_sections
-    sd_range = review.limits.sd_at(s.speed_mps)
+    sd_range = review.limits.sd_at(s.start_m + s.length_m / 2, s.speed_mps)
     truth_sd = {round(x): v for x, v in zip(truth.start_m, truth.sd_m, strict=True)} \
         if truth is not None else {}
     rows = []

@@ -14,11 +14,12 @@ from railgsa_ros.location import Location, Reference
 from railgsa_ros.offline import Source
 from railgsa_ros.review.exceedances import Exceedance
 from railgsa_ros.review.health import InputHealth
-from railgsa_ros.review.limits import Limits
-from railgsa_ros.review.sections import Sections
 from railgsa_ros.review.stream import ReviewRun
 from railgsa_ros.review.truth import Comparison
 from railgsa_ros.review.worst import WorstSurrogate
+from railgsa_ros.standards.en13848 import Limits, LimitTable
+from railgsa_ros.standards.line_speed import LineSpeed
+from railgsa_ros.standards.sections import Sections
 from railgsa_ros.uncertainty import UncertaintyConfig
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import VehicleParams
@@ -28,8 +29,10 @@ from railgsa_ros.vehicle import VehicleParams
 class ReviewOptions:
     """What to review and how: bag (and truth) paths, the uncertainty node's configuration
     (inversion included), nominal vehicle, uncertain parameters (None: no band), limit end
-    ('lower'/'upper' of the AL/IL ranges), section length (m), topics, whether the IMU rate
-    comes from the bag, and the location reference (line, track, direction, km-post)."""
+    ('lower'/'upper' of the standard's AL/IL ranges, without a manager's table), section length
+    (m), topics, whether the IMU rate comes from the bag, the location reference (line, track,
+    direction, km-post), the listing cut, the manager's limit table (None: the standard's) and
+    the line's permitted speed (None: class by the measuring speed)."""
 
     bag: Path
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
@@ -44,6 +47,8 @@ class ReviewOptions:
     gnss_topic: str = '/gnss/fix'
     reference: Reference = field(default_factory=Reference)
     min_probability: float = 0.0  # exceedances listed only when P(beyond the limit) >= this
+    limits: LimitTable | None = None
+    line_speed: LineSpeed | None = None
 
     @property
     def source(self) -> Source:

@@ -43,10 +43,10 @@ from railgsa_ros.offline import (
 )
 from railgsa_ros.review.band import KeptBand
 from railgsa_ros.review.exceedances import Exceedance, ExceedanceTracker
-from railgsa_ros.review.grid import DX_M, Grid, GridBuilder
 from railgsa_ros.review.health import HealthAccumulator, InputHealth
-from railgsa_ros.review.limits import CLASS_UPPER_KMH, Limits, speed_class
-from railgsa_ros.review.sections import SECTION_M, SectionSpeeds
+from railgsa_ros.standards.en13848 import Limits
+from railgsa_ros.standards.sampling import DX_M, Grid, GridBuilder
+from railgsa_ros.standards.sections import SECTION_M, SectionSpeeds
 from railgsa_ros.uncertainty import Sensitivity, UncertaintyConfig
 from railgsa_ros.uncertainty.surrogate import Design
 from railgsa_ros.uq.distributions import Distribution
@@ -82,8 +82,9 @@ class Extreme:
 @dataclass(frozen=True)
 class ReviewRun:
     """What a review keeps of a run: the chainage grid, the exceedances, the section speeds,
-    the largest |u| and widest band, samples per speed class (classes of ``CLASS_UPPER_KMH``,
-    then beyond the table), the first and last output (stamp ns, chainage m), the emitted count,
+    the largest |u| and widest band, samples per speed range (the ranges of the limits' table,
+    then beyond it or without a line speed), the limits placed on the run's km-posts, the first
+    and last output (stamp ns, chainage m), the emitted count,
     the input health, the window records, the worst sample and design of the band (None
     without), the pipeline's counters and band delay, the imu stamps' source, the location and
     the input policy's findings at the end (the mounting tilt among them).
@@ -95,6 +96,7 @@ class ReviewRun:
     peak: Extreme
     widest: Extreme | None
     class_counts: np.ndarray
+    limits: Limits
     first: tuple[int, float]
     last: tuple[int, float]
     emitted: int
@@ -122,12 +124,13 @@ class _Summaries:
     def __init__(self, source: Source, limits: Limits, section_m: float,
                  design: Design | None, quantiles: tuple[float, float]) -> None:
         self.source = source
+        self.limits = limits
         self.grid = GridBuilder(DX_M)
         self.band = KeptBand(design, quantiles, limits, DX_M) if design is not None else None
         self.tracker = ExceedanceTracker(limits, design=design)
         self.exceedances: list[Exceedance] = []
         self.speeds = SectionSpeeds(section_m)
-        self.classes = np.zeros(CLASS_UPPER_KMH.size + 1, np.int64)
+        self.classes = np.zeros(limits.table.upper_kmh.size + 1, np.int64)
         self.peak: Extreme | None = None
         self.widest: Extreme | None = None
         self.worst: Worst | None = None
@@ -167,8 +170,8 @@ class _Summaries:
                                               lower, upper, step.bank_u_m,
                                               step.sensor_std_m)
         self.speeds.push(c, step.speed_mps)
-        self.classes += np.bincount(speed_class(step.speed_mps) % self.classes.size,
-                                    minlength=self.classes.size)
+        ranges = self.limits.table.index(self.limits.speed_kmh(c, step.speed_mps))
+        self.classes += np.bincount(ranges % self.classes.size, minlength=self.classes.size)
         self.peak = _larger(self.peak, step.stamps_ns, c, step.u_m, np.abs(step.u_m))
         if lower is not None and upper is not None and band is not None and bank is not None:
             width = upper - lower
@@ -204,6 +207,7 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
     first, pieces = peek(chunks(source, chunk))
     location = locate(source, int(first.stamps_ns[0]) if first.stamps_ns.size else 0,
                       reference or Reference())
+    limits = replace(limits, km_of=location.reference.km)  # line speeds are given per km-post
     inv = config.inversion
     if rate_from_bag:
         config = config.with_(inversion=inv.with_(rate_hz=nominal_rate_hz(first, source)))
@@ -247,7 +251,7 @@ def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams
     assert summaries.peak is not None  # a valid grid cell needs a valid sample
     windows = driver.windows()
     return ReviewRun(grid, exceedances, summaries.speeds, summaries.peak, summaries.widest,
-                     summaries.classes, summaries.first, summaries.last, summaries.emitted,
+                     summaries.classes, limits, summaries.first, summaries.last, summaries.emitted,
                      health.health(driver.counters, first.stamp_source), windows,
                      summaries.worst, driver.bank.design if driver.bank else None,
                      driver.counters, driver.delay_samples, location,

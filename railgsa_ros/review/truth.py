@@ -26,7 +26,7 @@ from railgsa_ros.bag.messages import POINT_STAMPED
 from railgsa_ros.bag.reader import CHUNK, iter_topics
 from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.inverse.score import Score, band_distance, score
-from railgsa_ros.review.grid import MAX_STEP_M, CellInterpolator, CellStore
+from railgsa_ros.standards.sampling import MAX_STEP_M, CellInterpolator, CellStore
 from railgsa_ros.track import load_csv
 
 DX_M = 0.25  # scoring grid, m

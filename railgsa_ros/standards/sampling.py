@@ -1,5 +1,5 @@
-"""A run resampled on a fixed chainage grid while it streams: what the review keeps instead of
-every sample.
+"""EN 13848 sampling on distance: a run resampled on a fixed 0.25 m chainage grid while it
+streams, what the review and the fleet keep instead of every sample.
 
 Cell i is centred at (i + 1/2) dx m of chainage (dx = 0.25 m, as EN 13848 samples at <= 0.5 m).
 A cell takes the linear interpolation between the two consecutive samples whose chainage

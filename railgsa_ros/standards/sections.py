@@ -1,4 +1,5 @@
-"""Standard deviation of the band-filtered irregularity per fixed section of track (200 m).
+"""EN 13848-5 standard deviation of the band-filtered irregularity per fixed section of track
+(200 m).
 
 The signal is resampled to distance (cells of ``dx`` m, EN 13848 samples at <= 0.5 m); a cell
 counts when the samples around it lie less than ``max_step_m`` apart, so a gap in the data is
