@@ -3,11 +3,12 @@ profile (``svg_views``: inline SVG and script, works offline) and matplotlib fig
 
 Per line: the map of its trace (the stored line geometry over the stretch the passes cover),
 its 200 m sections coloured by the SD class of their newest pass and its defects; the fused
-profile with its +-2 SD band, the EN 13848-5 limits (AL, IL, IAL at the speed of the fastest
-pass, as the defects are classed) and the followed defects; each defect's depth over time with
-its error bars, the fitted trend with its 95 % band, every limit and the projected date; the SD
-per 200 m section of every pass. Then the defects table (NEW flagged) and the pass table
-(failed and unaligned passes with their message; bags relative to the database's folder).
+profile with its +-2 SD band, the EN 13848-5 limits (AL, IL, IAL by the line speed when given,
+else the fastest pass, as the defects are classed) and the followed defects; each defect's
+depth over time with its error bars, the fitted trend with its 95 % band, every limit and the
+projected date; the SD per 200 m section of every pass. Then the defects table (NEW flagged)
+and the pass table (failed and unaligned passes with their message; bags relative to the
+database's folder).
 The same trace, sections and defects are in DIR/fleet.geojson (``gis``).
 """
 
@@ -57,8 +58,9 @@ def _slug(line: str, track: str) -> str:
 
 def fused_profile(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
                   limits: Limits) -> str:
-    """The zoomable fused profile (mm over the line's km) with its +-2 SD band, the limits at
-    the speed of the fastest pass over each stretch and the defects; its legend below."""
+    """The zoomable fused profile (mm over the line's km) with its +-2 SD band, the limits
+    (``limits``: by the line speed, else the fastest pass over each stretch) and the defects;
+    its legend below."""
     f = db.fetch(con, """SELECT f.cell, f.u_m, f.sd_m, v.speed_mps FROM fused f LEFT JOIN (
                              SELECT cell, max(abs(pr.speed_mps)) AS speed_mps
                              FROM profiles pr JOIN passes p USING (pass_id)
