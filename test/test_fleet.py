@@ -195,9 +195,14 @@ def test_report_writes_html_with_figures(ingested, tmp_path):
     out = tmp_path / 'report'
     assert main(['fleet', 'report', '--db', str(path), '--out', str(out)]) == 0
     html = (out / 'report.html').read_text()
-    for png in ('fused_L1_1.png', 'trends_L1_1.png', 'sections_L1_1.png'):
+    for png in ('trends_L1_1.png', 'sections_L1_1.png'):
         assert (out / png).stat().st_size > 5000 and png in html
-    assert 'NEW' in html and 'broken.mcap' in html
+    assert 'NEW' in html and 'broken.mcap' in html and 'class="zoom profile"' in html
+    assert str(path.parent) not in html  # bags by name: no machine's paths
+    geo = json.loads((out / 'fleet.geojson').read_text())
+    defects = [f for f in geo['features'] if f['properties']['kind'] == 'defect']
+    con = db.connect(path, read_only=True)
+    assert len(defects) == con.execute('SELECT count(*) FROM defects').fetchone()[0]
 
 
 def test_a_stored_bag_is_skipped(ingested, series, capsys):

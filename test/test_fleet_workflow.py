@@ -160,7 +160,8 @@ def test_report_and_query(workflow):
     html = Path(outputs[2][1].strip())
     assert html == Path('fleet-report') / 'report.html'
     text = (root / html).read_text()
-    assert 'NEW' in text and text.count('<img') == 3
+    assert 'NEW' in text and text.count('<img') == 2  # trends, sections
+    assert 'class="zoom map"' in text and 'class="zoom profile"' in text  # GNSS: a map
     rows = list(csv.DictReader(outputs[3][1].splitlines()))
     truth_km = sorted(d['centre_km'] for d in truths[-1]['defects'])
     assert [abs(float(r['km']) - k) < 1e-3 for r, k in zip(rows, truth_km, strict=True)] \

@@ -333,18 +333,19 @@ def test_review_writes_defects_sections_and_a_json_summary(tmp_path: Path, capsy
     assert float(dip[0]['depth_mm']) < -20 and dip[0]['line'] == 'L1'
     assert 0.0 <= float(dip[0]['exceedance_probability']) <= 1.0
     assert dip[0]['lat'] and dip[0]['time_utc'].startswith('2023-')
-    geo = json.loads((out / 'defects.geojson').read_text(encoding='utf-8'))
-    assert geo['type'] == 'FeatureCollection' and len(geo['features']) == len(defects)
+    geo = json.loads((out / 'review.geojson').read_text(encoding='utf-8'))
+    kinds = [f['properties']['kind'] for f in geo['features']]
+    assert geo['type'] == 'FeatureCollection' and kinds.count('defect') == len(defects)
     point = next(f for f in geo['features']
-                 if f['properties']['stamp_ns'] == int(dip[0]['stamp_ns']))
+                 if f['properties'].get('stamp_ns') == int(dip[0]['stamp_ns']))
     assert point['geometry']['coordinates'] == pytest.approx([float(dip[0]['lon']),
                                                               float(dip[0]['lat'])])
     with (out / 'sections.csv').open(encoding='utf-8') as f:
         sections = list(csv.DictReader(f))
     assert [float(s['start_m']) for s in sections] == [0, 200, 400, 600, 800]
-    assert summary['sections']['count'] == len(sections)
+    assert summary['sections']['count'] == len(sections) == kinds.count('section')
     assert summary['worst_defect']['level'] in ('AL', 'IL', 'IAL')
-    assert set(summary['files']) == {'report', 'defects_csv', 'defects_geojson', 'sections_csv'}
+    assert set(summary['files']) == {'report', 'defects_csv', 'sections_csv', 'geojson'}
     assert all(Path(p).is_file() for p in summary['files'].values())
 
 

@@ -167,7 +167,7 @@ def test_report_lists_the_findings_and_links_existing_figures(review, tmp_path: 
     for name in images:
         assert (report.parent / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert sorted(p.name for p in report.parent.iterdir()) == sorted(
-        [*images, 'report.html', 'defects.csv', 'defects.geojson', 'sections.csv'])
+        [*images, 'report.html', 'defects.csv', 'review.geojson', 'sections.csv'])
     counts = {level: sum(e.level == level for e in review.exceedances)
               for level in ('IAL', 'IL', 'AL')}
     assert all(counts.values())  # the three dips: one of each level at least

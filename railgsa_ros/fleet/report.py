@@ -1,17 +1,26 @@
-"""``railgsa fleet report``: an HTML trend report of the database with matplotlib figures.
+"""``railgsa fleet report``: an HTML trend report of the database, with a map, a zoomable
+profile (``svg_views``: inline SVG and script, works offline) and matplotlib figures.
 
-Per line: the fused profile with its +-2 SD band and the followed defects; each defect's depth
-over time with its error bars, the fitted trend with its 95 % band, the next EN 13848-5 limit
-and the projected date; the SD per 200 m section of every pass. Then the defects table (NEW
-flagged) and the pass table (failed and unaligned passes with their message).
+Per line: the map of its trace (the stored line geometry over the stretch the passes cover),
+its 200 m sections coloured by the SD class of their newest pass and its defects; the fused
+profile with its +-2 SD band, the EN 13848-5 limits (AL, IL, IAL by the line speed when given,
+else the fastest pass, as the defects are classed) and the followed defects; each defect's
+depth over time with its error bars, the fitted trend with its 95 % band, every limit and the
+projected date; the SD per 200 m section of every pass. Then the defects table (NEW flagged)
+and the pass table (failed and unaligned passes with their message; bags relative to the
+database's folder).
+The same trace, sections and defects are in DIR/fleet.geojson (``gis``).
 """
 
 from __future__ import annotations
 
-from datetime import date
+from datetime import UTC, date, datetime
 from html import escape
+import math
+import os
 from pathlib import Path
 import re
+from typing import TYPE_CHECKING, Any
 
 import duckdb
 import matplotlib
@@ -20,15 +29,26 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt
 import numpy as np
 
+from railgsa_ros import gis
+from railgsa_ros.envelope import envelope
 from railgsa_ros.fileio import atomic_output
 from railgsa_ros.fleet import db
 from railgsa_ros.fleet.condition import DAY_NS, reclass
+from railgsa_ros.fleet.gnss import line_from_json
 from railgsa_ros.fleet.trend import fit_trend
-from railgsa_ros.standards.en13848 import Limits, LimitTable, en13848_table
+from railgsa_ros.standards.en13848 import LEVELS, Limits, LimitTable, en13848_table
 from railgsa_ros.standards.line_speed import LineSpeed
+from railgsa_ros.standards.sections import SECTION_M
+from railgsa_ros.svg_views import CSS as SVG_CSS
+from railgsa_ros.svg_views import MAP_LEGEND, SCRIPT, Mark, map_svg, profile_legend, profile_svg
+
+if TYPE_CHECKING:
+    from railgsa_ros.geo import Line
 
 REPORT = 'report.html'
+GEOJSON = 'fleet.geojson'
 MM = 1e3
+LEVEL_COLOURS = {'AL': '#e0a800', 'IL': '#e8590c', 'IAL': '#c92a2a'}
 
 
 def _slug(line: str, track: str) -> str:
@@ -36,39 +56,44 @@ def _slug(line: str, track: str) -> str:
     return re.sub(r'[^A-Za-z0-9._-]+', '-', f'{line}_{track}')
 
 
-def plot_fused(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str,
-               dx: float) -> Path:
-    """Fused profile (mm) over km with its +-2 SD band and the defects marked."""
-    f = db.fetch(con, 'SELECT cell, u_m, sd_m FROM fused WHERE line = ? AND track = ? '
-                      'ORDER BY cell', [line, track])
-    d = db.fetch(con, 'SELECT km, sign, depth_m, new FROM defects WHERE line = ? AND track = ?',
-                 [line, track])
-    km = f['cell'] * dx / 1000
-    fig, ax = plt.subplots(figsize=(11, 3.6), layout='constrained')
-    ax.fill_between(km, (f['u_m'] - 2 * f['sd_m']) * MM, (f['u_m'] + 2 * f['sd_m']) * MM,
-                    color='tab:blue', alpha=0.3, lw=0, label='+-2 SD')
-    ax.plot(km, f['u_m'] * MM, color='tab:blue', lw=0.6, label='fused profile')
-    for k, s, dep, new in zip(d['km'], d['sign'], d['depth_m'], d['new'], strict=True):
-        ax.plot(k, s * dep * MM, 'v' if s < 0 else '^', color='tab:red' if new else 'k', ms=7)
-        ax.annotate('NEW' if new else f'{k:.3f}', (k, s * dep * MM), textcoords='offset points',
-                    xytext=(4, -12 if s < 0 else 6), fontsize=8)
-    ax.set(xlabel='km', ylabel='irregularity (mm)', title=f'line {line} track {track}: fused')
-    ax.legend(loc='upper right', fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+def fused_profile(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
+                  limits: Limits) -> str:
+    """The zoomable fused profile (mm over the line's km) with its +-2 SD band, the limits
+    (``limits``: by the line speed, else the fastest pass over each stretch) and the defects;
+    its legend below."""
+    f = db.fetch(con, """SELECT f.cell, f.u_m, f.sd_m, v.speed_mps FROM fused f LEFT JOIN (
+                             SELECT cell, max(abs(pr.speed_mps)) AS speed_mps
+                             FROM profiles pr JOIN passes p USING (pass_id)
+                             WHERE p.line = ? AND p.track = ? AND p.status = 'ok' AND pr.valid
+                             GROUP BY cell) v USING (cell)
+                         WHERE f.line = ? AND f.track = ? ORDER BY f.cell""",
+                 [line, track, line, track])
+    x = f['cell'] * dx
+    # the strictest limits per bin (its fastest pass), as the defects are classed; NaN speed
+    # (no pass there): no limit
+    xl, _, fastest = envelope(x, np.asarray(f['speed_mps'], dtype=float))
+    thresholds = limits.at(xl, fastest) * MM
+    levels = [lv for j, lv in enumerate(LEVELS) if np.any(np.isfinite(thresholds[:, j]))]
+    marks = [Mark(d['x_m'], d['depth_m'] * MM, d['level'] or 'none',
+                  f'{d["level"] or "below AL"}{" NEW" if d["new"] else ""} at km '
+                  f'{d["km"]:.4f}: {d["depth_m"] * MM:+.2f} mm', bool(d['new']))
+             for d in line_defects(con, line, track, limits)]
+    u, sd = f['u_m'] * MM, f['sd_m'] * MM
+    return profile_svg(x, u, label=f'line {line} track {track}: fused profile',
+                       band_mm=(u - 2 * sd, u + 2 * sd), marks=marks,
+                       limits_mm={lv: (xl, thresholds[:, LEVELS.index(lv)]) for lv in levels}
+                       ) + profile_legend('+-2 SD', levels)
 
 
-def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str) -> Path:
+def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: str,
+                limits: Limits) -> Path:
     """One panel per defect: depth over time (error bars 1 SD), WLS trend with its 95 % band
-    extended to the projected date, the next limit."""
-    d = con.execute('SELECT defect_id, km, new, next_level, next_limit_m, projected, '
-                    'first_seen FROM defects WHERE line = ? AND track = ? ORDER BY km',
-                    [line, track]).fetchall()
+    extended to the projected date (of the next limit), every limit at the defect's speed."""
+    d = con.execute('SELECT defect_id, km, new, speed_kmh, projected, first_seen FROM defects '
+                    'WHERE line = ? AND track = ? ORDER BY km', [line, track]).fetchall()
     n = max(len(d), 1)
     fig, axes = plt.subplots(n, 1, figsize=(8, 2.6 * n), layout='constrained', squeeze=False)
-    for ax, (did, km, new, nxt, limit, projected, first) in zip(axes[:, 0], d, strict=False):
+    for ax, (did, km, new, speed_kmh, projected, first) in zip(axes[:, 0], d, strict=False):
         obs = db.fetch(con, 'SELECT epoch_ns(time) AS t, depth_m, depth_sd_m, detected '
                             'FROM detections WHERE line = ? AND track = ? AND defect_id = ? '
                             'ORDER BY time', [line, track, did])
@@ -86,13 +111,16 @@ def plot_trends(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: st
             ax.plot(_dates(tt), mid * MM, color='tab:blue', label='trend (WLS)')
             ax.fill_between(_dates(tt), (mid - 1.96 * sd) * MM, (mid + 1.96 * sd) * MM,
                             color='tab:blue', alpha=0.2, lw=0, label='95 %')
-        if limit is not None and np.isfinite(limit):
-            ax.axhline(limit * MM, color='tab:red', ls='--', lw=1, label=f'{nxt}')
+        for level, limit in zip(LEVELS, limits.at(np.array([1e3 * km]),
+                                                  np.array([speed_kmh / 3.6]))[0], strict=True):
+            if np.isfinite(limit):
+                ax.axhline(limit * MM, color=LEVEL_COLOURS[level], ls='--', lw=1,
+                           label=f'{level} {limit * MM:g} mm')
         if projected is not None:
             ax.axvline(np.datetime64(projected), color='tab:red', lw=0.8)
         ax.set(ylabel='depth (mm)', title=f'km {km:.4f}' + (' NEW' if new else ''))
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc='upper left')
+        ax.legend(fontsize=7, loc='upper left', ncol=2)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
@@ -111,13 +139,13 @@ def plot_segments(path: Path, con: duckdb.DuckDBPyConnection, line: str, track: 
     fig, ax = plt.subplots(figsize=(11, 3.2), layout='constrained')
     for pid in dict.fromkeys(rows['pass_id'].tolist()):
         pick = rows['pass_id'] == pid
-        km = (rows['start_m'][pick] + 100.0) / 1000
+        km = (rows['start_m'][pick] + SECTION_M / 2) / 1000
         ax.plot(km, rows['sd_m'][pick] * MM, 'o-', ms=3, lw=0.8,
                 label=f'pass {pid} ({rows["day"][pick][0]})')
     if rows['start_m'].size:
-        alert = limits.sd_at(rows['start_m'] + 100.0, rows['speed_mps'])[:, 0]
+        alert = limits.sd_at(rows['start_m'] + SECTION_M / 2, rows['speed_mps'])[:, 0]
         order = np.argsort(rows['start_m'])
-        ax.step((rows['start_m'][order] + 100.0) / 1000, alert[order] * MM, where='mid',
+        ax.step((rows['start_m'][order] + SECTION_M / 2) / 1000, alert[order] * MM, where='mid',
                 color='tab:red', ls='--', lw=1, label='SD alert (lower end)')
     ax.set(xlabel='km (section centre)', ylabel='SD per 200 m (mm)', ylim=(0, None),
            title=f'line {line} track {track}: 200 m sections')
@@ -158,9 +186,93 @@ def _cell(value: object) -> str:
     return str(value)
 
 
+def _positions(geometry: Line | None) -> gis.Positions:
+    """(lat, lon) deg of line chainages (m) on ``geometry``; NaN off it or without one."""
+    def positions(x_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lat, lon = np.full(x_m.shape, np.nan), np.full(x_m.shape, np.nan)
+        if geometry is not None:
+            on = (x_m >= geometry.start_m) & (x_m <= geometry.end_m)
+            if on.any():
+                lat[on], lon[on] = geometry.position(x_m[on])
+        return lat, lon
+    return positions
+
+
+def _plain(row: dict[str, Any]) -> dict[str, Any]:
+    """JSON values: dates as ISO text, None for NaN, lengths in mm (``_m`` columns become
+    ``_mm``), floats rounded to 4 digits after the point (0.1 um, 0.1 mm of km)."""
+    out: dict[str, Any] = {}
+    for key, value in row.items():
+        if isinstance(value, datetime):  # DuckDB TIMESTAMP: naive UTC
+            value = value.replace(tzinfo=UTC).isoformat()
+        elif isinstance(value, date):
+            value = value.isoformat()
+        elif isinstance(value, float):
+            if key.endswith('_m'):
+                key, value = key[:-2] + '_mm', value * MM
+            value = round(value, 4) if math.isfinite(value) else None
+        out[key] = value
+    return out
+
+
+def line_defects(con: duckdb.DuckDBPyConnection, line: str, track: str, limits: Limits
+                 ) -> list[dict[str, Any]]:
+    """The line's defects in km order, classed by ``limits`` (``condition.reclass``, as the
+    defects table), with their signed ``depth_m``."""
+    cur = con.execute("""SELECT defect_id, x_m, km, sign, depth_m, depth_sd_m, rate_mm_per_year,
+                                rate_se_mm_per_year, speed_kmh, level, next_level,
+                                next_limit_m, projected, projected_early, projected_late, new,
+                                first_seen, last_seen, passes, lat, lon
+                         FROM defects WHERE line = ? AND track = ? ORDER BY km""",
+                      [line, track])
+    names = [c[0] for c in cur.description]
+    rows = [reclass(dict(zip(names, r, strict=True)), limits) for r in cur.fetchall()]
+    return [{**{k: v for k, v in r.items() if k != 'sign'}, 'depth_m': r['sign'] * r['depth_m']}
+            for r in rows]
+
+
+def line_features(con: duckdb.DuckDBPyConnection, line: str, track: str, dx: float,
+                  limits: Limits, geometry: Line | None) -> list[gis.Feature]:
+    """The line's trace (its geometry over the fused profile's extent), its 200 m sections (the
+    newest pass with an SD there) and its defects as GeoJSON features (``gis``); null
+    geometries without a line geometry."""
+    first, last = con.execute('SELECT min(cell), max(cell) FROM fused WHERE line = ? AND '
+                              'track = ?', [line, track]).fetchone() or (None, None)
+    if first is None:
+        return []
+    key = {'line': line, 'track': track}
+    start, end = first * dx, last * dx
+    positions = _positions(geometry)
+    trace = gis.trace_feature(positions, start, end, {**key, 'start_km': round(start / 1e3, 4),
+                                                      'end_km': round(end / 1e3, 4)})
+    sec = db.fetch(con, """SELECT s.start_m, s.sd_m, s.coverage, s.speed_mps, s.pass_id,
+                                  strftime(p.start_time, '%Y-%m-%d') AS pass_date
+                           FROM segments s JOIN passes p USING (pass_id)
+                           WHERE p.line = ? AND p.track = ? AND p.status = 'ok'
+                                 AND isfinite(s.sd_m)
+                           QUALIFY row_number() OVER (PARTITION BY s.start_m
+                                                      ORDER BY p.start_time DESC) = 1
+                           ORDER BY s.start_m""", [line, track])
+    sd_range = limits.sd_at(sec['start_m'] + SECTION_M / 2, sec['speed_mps'])
+    rows = [{**key, 'start_km': round(x / 1e3, 4), 'end_km': round((x + SECTION_M) / 1e3, 4),
+             'start_m': float(x), 'length_m': SECTION_M,
+             **_plain({'sd_m': float(sd), 'sd_alert_low_m': float(lo),
+                       'sd_alert_high_m': float(hi)}),
+             'coverage': round(float(c), 4), 'speed_kmh': round(float(v) * 3.6, 1),
+             'pass_id': int(pid), 'pass_date': day}
+            for x, sd, c, v, pid, day, (lo, hi) in zip(
+                sec['start_m'], sec['sd_m'], sec['coverage'], sec['speed_mps'], sec['pass_id'],
+                sec['pass_date'], sd_range, strict=True)]
+    defects = [{k: v for k, v in d.items() if k != 'x_m'}
+               for d in line_defects(con, line, track, limits)]
+    return [trace, *gis.section_features(positions, rows, start, end),
+            *(gis.point_feature(d.pop('lat'), d.pop('lon'), {**key, **_plain(d)})
+              for d in defects)]
+
+
 STYLE = ('body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;'
          'font-size:12px;margin:1em 0}td,th{border:1px solid #ccc;padding:2px 6px}'
-         'th{background:#eee}img{max-width:100%}')
+         'th{background:#eee}img{max-width:100%}.note{font-size:.85em;color:#495057}')
 
 
 DEFECT_COLUMNS = ('defect_id', 'km', 'new', 'passes', 'depth_m', 'depth_sd_m', 'rate_mm_per_year',
@@ -184,25 +296,34 @@ def defects_table(con: duckdb.DuckDBPyConnection, line: str, track: str, limits:
 
 def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = False,
                  table: LimitTable | None = None, line_speed: LineSpeed | None = None) -> Path:
-    """Write DIR/report.html and its PNGs atomically, the defects classed by ``table`` (None:
-    the standard's) and ``line_speed`` (None: by the measuring speed, the fastest pass);
-    returns the report's path."""
+    """Write DIR/report.html, its PNGs and DIR/fleet.geojson atomically, the defects classed by
+    ``table`` (None: the standard's) and ``line_speed`` (None: by the measuring speed, the
+    fastest pass); returns the report's path."""
     con = db.connect(db_path, read_only=True)
     try:
-        lines = con.execute('SELECT line, track, dx_m, band FROM lines '
+        lines = con.execute('SELECT line, track, dx_m, band, geometry FROM lines '
                             'ORDER BY line, track').fetchall()
         with atomic_output(out_dir, overwrite) as tmp:
             tmp.mkdir()
-            parts = [f'<h1>Track condition: {escape(str(db_path))}</h1>']
-            for line, track, dx, band in lines:
+            parts = [f'<h1>Track condition: {escape(Path(db_path).name)}</h1>']
+            features: list[gis.Feature] = []
+            for line, track, dx, band, geometry in lines:
                 limits = Limits(table or en13848_table(), band, line_speed)
                 slug = _slug(line, track)
-                fused = plot_fused(tmp / f'fused_{slug}.png', con, line, track, dx)
-                trends = plot_trends(tmp / f'trends_{slug}.png', con, line, track)
+                found = line_features(con, line, track, dx, limits,
+                                      line_from_json(geometry) if geometry else None)
+                features += found
+                drawn = map_svg(found, f'map of line {line} track {track}')
+                trends = plot_trends(tmp / f'trends_{slug}.png', con, line, track, limits)
                 sections = plot_segments(tmp / f'sections_{slug}.png', con, line, track,
                                          limits)
                 parts += [f'<h2>Line {escape(line)}, track {escape(track)}</h2>',
-                          f'<img src="{fused.name}" alt="fused profile">',
+                          drawn + MAP_LEGEND if drawn else
+                          '<p>No line geometry stored: no map.</p>',
+                          '<p class=note>200 m sections coloured by the SD of their newest pass '
+                          'against the EN 13848-5 alert range of its speed; defects coloured by '
+                          'level, NEW ones ringed (hover for values).</p>',
+                          fused_profile(con, line, track, dx, limits),
                           '<h3>Defects (depth = mean-to-peak of the band-filtered profile; '
                           'rate by weighted least squares, SE from the per-pass SDs)</h3>',
                           f'<p>EN 13848-5 levels: {escape(limits.basis)}; limit table '
@@ -211,14 +332,21 @@ def write_report(db_path: str | Path, out_dir: str | Path, overwrite: bool = Fal
                           f'<img src="{trends.name}" alt="defect trends">',
                           '<h3>Standard deviation per 200 m section</h3>',
                           f'<img src="{sections.name}" alt="200 m sections">']
+            # bags relative to the database's folder, else by name: no machine's paths
+            root = str(Path(db_path).resolve().parent) + os.sep
             parts += ['<h2>Passes</h2>', _table(con, """
-                SELECT p.pass_id, p.bag, p.start_time, p.vehicle, p.direction,
+                SELECT p.pass_id, CASE WHEN starts_with(p.bag, ?) THEN substr(p.bag, ?)
+                                       ELSE parse_filename(p.bag) END AS bag,
+                       p.start_time, p.vehicle, p.direction,
                        p.speed_mean_mps * 3.6 AS speed_kmh, p.duration_s, p.status, p.message,
                        a.method AS alignment, a.scale, a.position_sd_m, a.correlation,
                        p.noise_m * 1e3 AS scatter_mm, p.gain
-                FROM passes p LEFT JOIN alignments a USING (pass_id) ORDER BY p.pass_id""")]
+                FROM passes p LEFT JOIN alignments a USING (pass_id) ORDER BY p.pass_id""",
+                [root, len(root) + 1])]
+            gis.write(tmp / GEOJSON, features)
             html = (f'<!doctype html><html><head><meta charset="utf-8"><title>railgsa fleet'
-                    f'</title><style>{STYLE}</style></head><body>{"".join(parts)}</body></html>')
+                    f'</title><style>{STYLE}{SVG_CSS}</style></head><body>{"".join(parts)}'
+                    f'<script>{SCRIPT}</script></body></html>')
             (tmp / REPORT).write_text(html, encoding='utf-8')
     finally:
         con.close()

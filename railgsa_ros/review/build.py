@@ -108,7 +108,7 @@ def draw_figures(review: Review, folder: Path) -> dict[str, str]:
 
 def write_review(review: Review, out_dir: str | Path, overwrite: bool = False,
                  progress: Progress | None = None) -> Path:
-    """Write DIR/report.html with its PNGs, defects.csv, defects.geojson and sections.csv
+    """Write DIR/report.html with its PNGs, defects.csv, sections.csv and review.geojson
     atomically; returns the report's path."""
     start = time.perf_counter()
     with atomic_output(out_dir, overwrite) as tmp:
@@ -116,7 +116,7 @@ def write_review(review: Review, out_dir: str | Path, overwrite: bool = False,
         if progress is not None:
             progress('drawing', 1.0)
         names = draw_figures(review, tmp)
-        write_outputs(review, tmp)
+        features = write_outputs(review, tmp)
         review.timings['figures'] = time.perf_counter() - start
-        (tmp / REPORT).write_text(render_html(review, names), encoding='utf-8')
+        (tmp / REPORT).write_text(render_html(review, names, features), encoding='utf-8')
     return Path(out_dir) / REPORT

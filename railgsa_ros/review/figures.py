@@ -1,7 +1,7 @@
 """PNG figures of a review (matplotlib, Agg, no pyplot state). Lengths are shown in mm.
 
-Long signals are drawn as their min/max envelope over about ``PIXELS`` bins, which keeps every
-peak visible and the drawing time independent of the run length.
+Long signals are drawn as their min/max envelope (``envelope``), which keeps every peak visible
+and the drawing time independent of the run length.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from railgsa_ros.envelope import envelope
 from railgsa_ros.location import Reference
 from railgsa_ros.review.exceedances import Exceedance
 from railgsa_ros.review.health import InputHealth
@@ -21,7 +22,6 @@ from railgsa_ros.standards.sections import Sections
 from railgsa_ros.uncertainty import Sensitivity
 from railgsa_ros.uq.plots import draw_histogram
 
-PIXELS = 1600  # envelope bins across a full-width panel
 DPI = 110
 MM = 1e3
 LEVEL_COLOURS = {'AL': '#e0a800', 'IL': '#e8590c', 'IAL': '#c92a2a'}
@@ -59,20 +59,6 @@ def _save(fig, path: Path) -> Path:
     files (plots are mostly flat colour)."""
     fig.savefig(path, dpi=DPI, pil_kwargs={'compress_level': 1})
     return path
-
-
-def envelope(x: np.ndarray, *ys: np.ndarray, bins: int = PIXELS) -> tuple[np.ndarray, ...]:
-    """(x (B,), then min (B,) and max (B,) of every y) over consecutive blocks of samples; the
-    input itself (min = max = y) when it has fewer than 2 * bins samples. Reduced in place
-    (``reduceat``): no copy of a long signal."""
-    x = np.asarray(x, dtype=float)
-    if x.size < 2 * bins:
-        return (x, *(v for y in ys for v in (y, y)))
-    starts = np.arange(0, x.size, -(-x.size // bins))
-    out = [np.add.reduceat(x, starts) / np.diff(np.append(starts, x.size))]
-    for y in ys:  # fmin/fmax skip NaN (a block of NaN stays NaN, without a warning)
-        out += [np.fmin.reduceat(y, starts), np.fmax.reduceat(y, starts)]
-    return tuple(out)
 
 
 def _km_axis(ax, reference: Reference) -> None:
@@ -138,6 +124,13 @@ def _band_label(quantiles: tuple[float, float]) -> str:
     return f'{100 * quantiles[0]:g}-{100 * quantiles[1]:g} % band'
 
 
+def loosest_limits(grid: Grid, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
+    """(chainage (B,) m, limits (B, 3) m) per envelope bin of the grid: the limits fall with
+    speed, so those of the bin's slowest sample (the loosest)."""
+    xe, slowest, _ = envelope(grid.x_m, grid.speed_mps)
+    return xe, limits.at(xe, slowest)
+
+
 def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exceedance],
                   quantiles: tuple[float, float], reference: Reference) -> Path:
     """Irregularity over chainage (the run's 0.25 m grid, km-posts on top) with the band,
@@ -148,8 +141,7 @@ def plot_overview(path: Path, grid: Grid, limits: Limits, exceedances: list[Exce
     if grid.has_band:
         _band(ax, x, grid.lower_m, grid.upper_m, _band_label(quantiles))
     _signal(ax, x, grid.u_m, MM, color=LINE_COLOUR, label='reconstruction')
-    xe, slowest, _ = envelope(x, grid.speed_mps)
-    _limit_lines(ax, xe, limits.at(xe, slowest))  # the limits fall with speed: the loosest per bin
+    _limit_lines(ax, *loosest_limits(grid, limits))
     for level in LEVELS:
         picked = [e for e in exceedances if e.level == level]
         for sure in (True, False):  # filled: certain or likely, hollow: possible

@@ -1,5 +1,7 @@
-"""Machine-readable results of a review, for maintenance systems: the defects (CSV and GeoJSON),
-the 200 m sections (CSV) and the summary that ``railgsa review --json`` prints.
+"""Machine-readable results of a review, for maintenance systems: the defects and the 200 m
+sections (CSV), the run trace, the sections and the defects as one GeoJSON FeatureCollection
+(``gis``: the maps of GIS tools and of the report) and the summary that ``railgsa review
+--json`` prints.
 
 Every defect is an exceedance (``exceedances``) at its peak: km-post and chainage, WGS84
 position (empty without GNSS), signed depth (the mean-to-peak value of the reconstruction),
@@ -13,18 +15,18 @@ from __future__ import annotations
 
 import csv
 from datetime import UTC, datetime
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from railgsa_ros import gis
 from railgsa_ros.review.exceedances import describe_counts
 from railgsa_ros.review.results import Review
 
 DEFECTS_CSV = 'defects.csv'
-DEFECTS_GEOJSON = 'defects.geojson'
+GEOJSON = 'review.geojson'
 SECTIONS_CSV = 'sections.csv'
 MM = 1e3
 
@@ -101,23 +103,35 @@ SECTION_COLUMNS = ['line', 'track', 'direction', 'start_km', 'end_km', 'start_m'
                    'sd_mm', 'coverage', 'speed_kmh', 'sd_alert_low_mm', 'sd_alert_high_mm']
 
 
-FILES = {'defects_csv': DEFECTS_CSV, 'defects_geojson': DEFECTS_GEOJSON,
-         'sections_csv': SECTIONS_CSV}
+FILES = {'defects_csv': DEFECTS_CSV, 'sections_csv': SECTIONS_CSV, 'geojson': GEOJSON}
 
 
-def write_outputs(review: Review, folder: Path) -> None:
-    """defects.csv, defects.geojson and sections.csv (``FILES``) into ``folder``."""
-    defects = defect_rows(review)
+def features(review: Review, defects: list[dict[str, Any]], sections: list[dict[str, Any]]
+             ) -> list[gis.Feature]:
+    """The run's trace, its sections and its defects (rows of ``defect_rows`` and
+    ``section_rows``) as GeoJSON features (``gis``); null geometries without GNSS."""
+    loc, run = review.location, review.run
+    ref = loc.reference
+    (t0, start), (t1, end) = run.first, run.last
+    trace = gis.trace_feature(loc.lat_lon, start, end, {
+        'line': ref.line, 'track': ref.track, 'direction': ref.direction,
+        'start_km': _number(float(ref.km(start)), 4), 'end_km': _number(float(ref.km(end)), 4),
+        'bag': review.options.bag.name, 'start_utc': _iso(t0), 'end_utc': _iso(t1)})
+    return [trace, *gis.section_features(loc.lat_lon, sections, start, end),
+            *(gis.point_feature(d['lat'], d['lon'],
+                                {k: v for k, v in d.items() if k not in ('lat', 'lon')})
+              for d in defects)]
+
+
+def write_outputs(review: Review, folder: Path) -> list[gis.Feature]:
+    """defects.csv, sections.csv and review.geojson (``FILES``) into ``folder``; returns the
+    GeoJSON features."""
+    defects, sections = defect_rows(review), section_rows(review)
     _write_csv(folder / DEFECTS_CSV, defects, DEFECT_COLUMNS)
-    _write_csv(folder / SECTIONS_CSV, section_rows(review), SECTION_COLUMNS)
-    features = [{'type': 'Feature',
-                 'geometry': (None if d['lat'] is None else
-                              {'type': 'Point', 'coordinates': [d['lon'], d['lat']]}),
-                 'properties': {k: v for k, v in d.items() if k not in ('lat', 'lon')}}
-                for d in defects]
-    (folder / DEFECTS_GEOJSON).write_text(
-        json.dumps({'type': 'FeatureCollection', 'features': features}, indent=1) + '\n',
-        encoding='utf-8')
+    _write_csv(folder / SECTIONS_CSV, sections, SECTION_COLUMNS)
+    found = features(review, defects, sections)
+    gis.write(folder / GEOJSON, found)
+    return found
 
 
 def summary(review: Review, report: Path) -> dict[str, Any]:

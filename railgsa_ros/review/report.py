@@ -1,7 +1,9 @@
 """The review as one self-contained HTML page (inline CSS, PNGs next to it by relative links).
 
-Order: a summary an engineer reads in ten seconds, then the figures with their tables: limits and
-exceedances, 200 m standard deviations, uncertainty and sensitivity, input health, truth.
+Order: a summary an engineer reads in ten seconds, the map (trace, 200 m sections coloured by
+their SD class, defects) and the zoomable profile (``svg_views``: inline SVG and script, works
+offline), then the figures with their tables: limits and exceedances, 200 m standard deviations,
+uncertainty and sensitivity, input health, truth.
 """
 
 from __future__ import annotations
@@ -12,9 +14,13 @@ from html import escape
 import numpy as np
 
 from railgsa_ros import __version__
+from railgsa_ros.gis import Feature, sd_class
 from railgsa_ros.review.exceedances import CONFIDENCES, count_by_level, describe_counts
+from railgsa_ros.review.figures import loosest_limits
 from railgsa_ros.review.results import Review
 from railgsa_ros.standards.en13848 import LEVELS, SOURCE, LimitTable
+from railgsa_ros.svg_views import CSS as SVG_CSS
+from railgsa_ros.svg_views import MAP_LEGEND, SCRIPT, Mark, map_svg, profile_legend, profile_svg
 
 MM = 1e3
 MAX_ROWS = 200  # rows of the exceedance and section tables
@@ -185,9 +191,7 @@ def _sections_section(review: Review, names: dict[str, str]) -> str:
         if truth is not None else {}
     rows = []
     for i in range(min(len(s), MAX_ROWS)):
-        status = ('above range' if s.sd_m[i] > sd_range[i, 1] else
-                  'in alert range' if s.sd_m[i] > sd_range[i, 0] else
-                  'below' if np.isfinite(s.sd_m[i] + sd_range[i, 0]) else '-')
+        status = sd_class(*(float(v) for v in (s.sd_m[i], *sd_range[i]))) or '-'
         row = [f'{s.start_m[i]:.0f}', _mm(s.sd_m[i]), f'{100 * min(s.coverage[i], 1):.0f} %',
                f'{s.speed_mps[i] * 3.6:.0f}', f'{_mm(sd_range[i, 0], 1)}-{_mm(sd_range[i, 1], 1)}',
                status]
@@ -204,6 +208,35 @@ def _sections_section(review: Review, names: dict[str, str]) -> str:
 sections with less than half their length covered show no value. The alert ranges are the
 EN 13848-5 informative annex values from secondary sources [M].</p>
 {_table(header, rows, left=0)}'''
+
+
+def _map_section(review: Review, features: list[Feature]) -> str:
+    """The map of the GeoJSON features and the zoomable profile with its band, limits and
+    exceedances."""
+    grid, ref, lim = review.run.grid, review.location.reference, review.limits
+    drawn = map_svg(features, f'map of {review.options.bag.name}')
+    where = (drawn + MAP_LEGEND if drawn else
+             '<p class=note>No GNSS position in the bag: no map (review.geojson holds the '
+             'trace, sections and defects without geometry).</p>')
+    band = None
+    if grid.has_band:
+        q = (review.config.lower_quantile, review.config.upper_quantile)
+        band = f'{100 * q[0]:g}-{100 * q[1]:g} % band'
+    xl, thresholds = loosest_limits(grid, lim)
+    levels = [level for j, level in enumerate(LEVELS) if np.any(np.isfinite(thresholds[:, j]))]
+    marks = [Mark(e.peak_m, e.peak_u_m * MM, e.level,
+                  f'{e.level} ({e.confidence}) at {ref.label(e.peak_m)}: '
+                  f'{e.peak_u_m * MM:+.2f} mm') for e in review.exceedances]
+    profile = profile_svg(
+        grid.x_m, grid.u_m * MM, label=f'{lim.band.upper()} profile', marks=marks,
+        band_mm=(grid.lower_m * MM, grid.upper_m * MM) if band else None,
+        limits_mm={level: (xl, thresholds[:, LEVELS.index(level)] * MM) for level in levels},
+        km=(float(ref.km(0.0)), float(ref.km(1e3) - ref.km(0.0))))
+    return f'''<h2>Map and profile</h2>
+{where}
+<p class=note>200 m sections coloured by their SD against the EN 13848-5 alert range of their
+speed; defects at their peaks, coloured by level (hover for values).</p>
+{profile}{profile_legend(band, levels)}'''
 
 
 def _uncertainty_section(review: Review, names: dict[str, str]) -> str:
@@ -298,8 +331,9 @@ def _footer(review: Review) -> str:
 {speed:.0f}x real time. railgsa_ros {__version__}.</p>'''
 
 
-def render_html(review: Review, names: dict[str, str]) -> str:
-    """The report page; ``names`` maps figure keys to PNG file names in the same directory."""
+def render_html(review: Review, names: dict[str, str], features: list[Feature]) -> str:
+    """The report page; ``names`` maps figure keys to PNG file names in the same directory,
+    ``features`` are the GeoJSON features of the map (``outputs.features``)."""
     bag = review.options.bag
     start = datetime.fromtimestamp(review.run.first[0] / 1e9, UTC)
     body = '\n'.join([
@@ -307,10 +341,11 @@ def render_html(review: Review, names: dict[str, str]) -> str:
         f'<p class=sub>{escape(str(bag))} &middot; first stamp {start:%Y-%m-%d %H:%M:%S} UTC '
         f'&middot; EN 13848 {review.limits.band.upper()}, method '
         f'{escape(review.config.inversion.method)}</p>',
-        _summary(review), _limits_section(review, names), _sections_section(review, names),
+        _summary(review), _map_section(review, features), _limits_section(review, names),
+        _sections_section(review, names),
         _uncertainty_section(review, names), _health_section(review, names),
         _truth_section(review, names), _footer(review)])
     return (f'<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>'
             f'<meta name=viewport content="width=device-width,initial-scale=1">'
-            f'<title>Review {escape(bag.name)}</title><style>{CSS}</style></head>'
-            f'<body>\n{body}\n</body></html>\n')
+            f'<title>Review {escape(bag.name)}</title><style>{CSS}{SVG_CSS}</style></head>'
+            f'<body>\n{body}\n<script>{SCRIPT}</script>\n</body></html>\n')
