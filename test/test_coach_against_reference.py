@@ -101,7 +101,9 @@ def project_run(chainage: Callable[[np.ndarray], np.ndarray], seconds: float, ra
     return simulate_model(u, 1.0 / rate_hz, MODEL)[:, ::every]
 
 
-SPEEDS = {  # speed (m/s) of the reference wheelset and its chainage x(t) from 20 m
+Speed = float | Callable[[float], float]
+SPEEDS: dict[str, tuple[Speed, Callable[[np.ndarray], np.ndarray]]] = {
+    # speed (m/s) of the reference wheelset and its chainage x(t) from 20 m
     'constant 25 m/s': (25.0, lambda t: 20.0 + 25.0 * t),
     '10 m/s + 20 m/s^2': (lambda t: 10.0 + 20.0 * t, lambda t: 20.0 + 10.0 * t + 10.0 * t ** 2),
 }
