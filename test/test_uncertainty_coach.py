@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import json
 
 import numpy as np
 import pytest
@@ -119,3 +120,22 @@ def test_a_small_ensemble_s_95_percent_band_holds_the_truth_near_its_level() -> 
     fifty, ninety_five, _ = np.mean(inside, axis=0)
     assert 0.85 <= ninety_five <= 1.0
     assert 0.2 <= fifty <= 0.85
+
+
+def test_gsa_takes_a_coach_file(capsys) -> None:
+    """``railgsa gsa --vehicle coach.yaml``: the coach's ten parameters (pem3: 21 runs), its
+    mean the nominal design's estimate; without a law or with the forward scenario, exit 2."""
+    from railgsa_ros.cli.main import main
+
+    vehicle = ['--vehicle', 'config/vehicles/coach.yaml']
+    assert main(['gsa', *vehicle, '--uncertainty', PRIOR, '--time', '30', '--speed', '20',
+                 '--rule', 'pem3', '--order', '1', '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert list(out['sobol_total']) == list(COACH.param_names) and out['n_evaluations'] == 21
+    law = load_uncertainty(PRIOR, COACH)
+    nominal = make_wiener_scenario(COACH, law, 30.0)(COACH.theta[None, :])[0]
+    assert out['mean'] == pytest.approx(nominal, abs=0.5 * out['std'])
+    assert main(['gsa', *vehicle, '--time', '30']) == 2
+    assert 'Table 3 is for the quarter car' in capsys.readouterr().err
+    assert main(['gsa', *vehicle, '--uncertainty', PRIOR, '--scenario', 'forward']) == 2
+    assert 'inverse scenario on German low track only' in capsys.readouterr().err
