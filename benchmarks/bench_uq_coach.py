@@ -1,18 +1,20 @@
 """The coach's windowed sensitivities (issue 21 item 4): PCE/PEM against SALib at equal accuracy.
 
-Scenario (``uncertainty.wiener_scenario``): a record of the shipped coach (IMU above the leading
-bogie, ADXL355-like noise, German low, 20 m/s) inverted by the LMMSE design of each parameter
-set; the output is the D1 estimate at the samples of a 10 s window (every 0.2 s: 51 outputs).
+Scenario (``uncertainty.wiener_scenario``): a record of the shipped coach (IMU above the
+leading bogie, ADXL355-like noise, German low, --speed, default 20 m/s) inverted by the LMMSE
+design of each parameter set; the output is the D1 estimate at the samples of a 10 s window
+(every 0.2 s: 51 outputs).
 The uncertain parameters are all ten of ``config/uncertainty_coach.yaml``. Windowed indices
 aggregate the window's outputs by their variances (S_i = sum_k V_k S_ik / sum_k V_k). The
-reference is brute force: Saltelli/Jansen Monte Carlo with 4096 x 12 runs
+reference is brute force: Saltelli/Jansen Monte Carlo with --reference x 12 runs
 (``uq.validate.monte_carlo_indices``). Each method's design grows until max |error| over the
 ten aggregated S1 and ST < TOL (or its largest size); printed: every design's error, the first
 passing design, its runs, wall time and the ratio of SALib's runs to ours, the reference's
 indices and the delta at the window's most uncertain output (on the order-3 PCE). Needs the
 bench extra (SALib).
 
-    PYTHONPATH=$PWD python benchmarks/bench_uq_coach.py [--largest-salib 1024]
+    PYTHONPATH=$PWD python benchmarks/bench_uq_coach.py [--largest-salib 1024] [--reference N]
+        [--speed 20]
 """
 
 from __future__ import annotations
@@ -79,12 +81,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--largest-salib', type=int, default=1024, help='largest SALib N')
     parser.add_argument('--reference', type=int, default=4096, help='brute-force N')
+    parser.add_argument('--speed', type=float, default=20.0, help='m/s')
     args = parser.parse_args()
     warnings.simplefilter('ignore', AliasingWarning)
     model = load_model('config/vehicles/coach.yaml')
     law = load_uncertainty('config/uncertainty_coach.yaml', model)
     dists, names = list(law.values()), list(law)
-    scenario = make_wiener_scenario(model, law, TIMES, duration_s=70.0, rate_hz=25.0)
+    scenario = make_wiener_scenario(model, law, TIMES, args.speed, duration_s=70.0,
+                                    rate_hz=max(25.0, 1.25 * args.speed))
     start = time.perf_counter()
     brute = monte_carlo_indices(scenario, dists, args.reference)
     var = brute.std ** 2
