@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 #: output std (m or m/s^2) below which the output counts as constant: 1e-12 m is a
 #: thousandth of a nanometre of irregularity, far below any sensor (the flat start of a
@@ -26,7 +27,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--speed', type=float, default=10.0, metavar='MPS', help='m/s (default 10)')
     p.add_argument('--uncertainty', metavar='FILE.yaml',
                    help='uncertain parameters (default: Table 3, sigma = mu / 3)')
-    p.add_argument('--vehicle', metavar='FILE', help='nominal vehicle YAML (default Table 1)')
+    p.add_argument('--vehicle', metavar='FILE',
+                   help='nominal vehicle YAML (default Table 1); a coach file (model: coach) '
+                        'inverts a simulated record of it with each parameter set\'s LMMSE '
+                        'design (scenario inverse, German low; --uncertainty required, T at '
+                        'least 25 s into the 100 s record)')
     p.add_argument('--rule', choices=('pem3', 'pem5', 'gauss', 'lstsq'), default='pem5')
     p.add_argument('--order', type=int, default=3, help='PCE total order (default 3)')
     p.add_argument('--gain', type=float, default=1000.0, help='feedback gain K^c (default 1000)')
@@ -47,8 +52,10 @@ def run(args: argparse.Namespace) -> int:
 
     from railgsa_ros.errors import ConfigError
     from railgsa_ros.fileio import atomic_output, refuse_overlap, writable_dir
-    from railgsa_ros.uncertainty.parameters import load_uncertainty
+    from railgsa_ros.models import load_model
+    from railgsa_ros.uncertainty.parameters import load_uncertainty, table3
     from railgsa_ros.uncertainty.scenarios import make_scenario
+    from railgsa_ros.uncertainty.wiener_scenario import make_wiener_scenario
     from railgsa_ros.uq import AliasingWarning, analyze, validate
     from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
@@ -64,13 +71,19 @@ def run(args: argparse.Namespace) -> int:
         refuse_overlap(args.plot, (args.vehicle, args.uncertainty, args.profile[5:]
                                    if args.profile.startswith('file:') else None))
         folder = writable_dir(args.plot)
-    vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
-    dists = load_uncertainty(args.uncertainty) if args.uncertainty else None
-    if dists is None:
-        from railgsa_ros.uncertainty.parameters import table3
-        dists = table3(vehicle)
-    scenario = make_scenario(args.scenario, args.time, dists, args.profile, args.speed, vehicle,
-                             args.gain, seed=args.seed)
+    model = load_model(args.vehicle) if args.vehicle else None
+    if model is not None and model.kind != 'quarter_car':  # a regularised (LMMSE) inverse
+        if args.scenario != 'inverse' or args.profile != 'paper':
+            raise ConfigError(f'--vehicle: the {model.kind} has the inverse scenario on German '
+                              'low track only (no --scenario forward, no --profile)')
+        dists = load_uncertainty(args.uncertainty, model)
+        scenario: Any = make_wiener_scenario(model, dists, args.time, args.speed,
+                                             seed=args.seed)
+    else:
+        vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
+        dists = load_uncertainty(args.uncertainty) if args.uncertainty else table3(vehicle)
+        scenario = make_scenario(args.scenario, args.time, dists, args.profile, args.speed,
+                                 vehicle, args.gain, seed=args.seed)
     names = list(dists)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter('always', AliasingWarning)

@@ -258,12 +258,19 @@ class UncertaintyStream:
 
     def update(self, out: Output) -> Update:
         """Band and closed windows of policy outputs ``out`` (u (P, K), NaN where INVALID)."""
-        sensor = self.terms.std(out.stamps_ns, self.design.projector[0] @ out.u_m,
-                                out.speed_mps, out.quality, out.gap_std_m, out.chainage_m)
-        band = bank_band(self.design, self._quantiles, out, sensor)
+        band, sensor = band_update(self.design, self.terms, self._quantiles, out)
         return Update(band, self.windows.push(out.stamps_ns, out.chainage_m, band.mean_m,
                                               out.u_m, out.graded != Quality.INVALID),
                       out.u_m, sensor)
+
+
+def band_update(design: Design, terms: SensorTerms, quantiles: tuple[float, float] | None,
+                out: Output) -> tuple[Band, np.ndarray]:
+    """The band of bank outputs ``out`` (u (P, K)) and its sensor std (K,) m from ``terms``
+    (streamed: call in output order)."""
+    sensor = terms.std(out.stamps_ns, design.projector[0] @ out.u_m, out.speed_mps,
+                       out.quality, out.gap_std_m, out.chainage_m)
+    return bank_band(design, quantiles, out, sensor), sensor
 
 
 def bank_band(design: Design, quantiles: tuple[float, float] | None, out: Output,

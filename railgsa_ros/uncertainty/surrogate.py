@@ -25,17 +25,19 @@ import numpy as np
 from scipy import special
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.models import VehicleModel, as_model
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 from railgsa_ros.uq.distributions import Distribution, isoprobabilistic
 from railgsa_ros.uq.germ import resolve, sobol, to_normal
 from railgsa_ros.uq.pce import basis, multi_indices
 from railgsa_ros.uq.rules import exact_degree, make_rule
-from railgsa_ros.vehicle import PARAM_NAMES, VehicleParams, as_theta
+from railgsa_ros.vehicle import VehicleParams
 
 
 @dataclass(frozen=True)
 class Design:
-    """Rule points xi (P, n) in germ space, their vehicles theta (P, 5), the PCE multi-indices
+    """Rule points xi (P, n) in germ space, their vehicles theta (P, N) (N: the model's
+    parameters, 5 for the quarter car), the PCE multi-indices
     alpha (T, n), ``projector`` (T, P), ``germ_basis`` (T - 1, S), the fit used and the germ
     (the config's, or the inputs' default for 'auto')."""
 
@@ -72,21 +74,23 @@ def _projector(config: UncertaintyConfig, xi: np.ndarray, w: np.ndarray, alpha: 
     return np.linalg.pinv(psi), 'ols'
 
 
-def build_design(config: UncertaintyConfig, vehicle: VehicleParams | np.ndarray,
-                 dists: Mapping[str, Distribution]) -> Design:
-    """Rule points for the uncertain parameters ``dists`` (name -> distribution, names from
-    PARAM_NAMES) around the nominal ``vehicle``; the other parameters stay nominal."""
-    names = tuple(dists)
-    bad = [n for n in names if n not in PARAM_NAMES]
+def build_design(config: UncertaintyConfig, vehicle: VehicleParams | VehicleModel | np.ndarray
+                 | None, dists: Mapping[str, Distribution]) -> Design:
+    """Rule points for the uncertain parameters ``dists`` (name -> distribution, names from the
+    model's ``param_names``) around the nominal ``vehicle`` (a ``models`` vehicle model, or the
+    quarter car's VehicleParams or theta (5,)); the other parameters stay nominal."""
+    model = as_model(vehicle)
+    names, known = tuple(dists), model.param_names
+    bad = [n for n in names if n not in known]
     if not names or bad:
-        raise ConfigError(f'uncertain parameters: expected some of {", ".join(PARAM_NAMES)}, '
-                          f'got {", ".join(names) or "none"}')
+        raise ConfigError(f'uncertain parameters: expected some of {", ".join(known)} (the '
+                          f'{model.kind}), got {", ".join(names) or "none"}')
     n = len(names)
     germ = resolve(config.germ, list(dists.values()), config.rule)
     xi, w = make_rule(config.rule, n, config.order, config.rule_size or None, config.seed, germ)
-    theta = np.tile(as_theta(vehicle), (xi.shape[0], 1))
+    theta = np.tile(model.theta, (xi.shape[0], 1))
     physical = isoprobabilistic(list(dists.values()), to_normal(xi, germ))
-    theta[:, [PARAM_NAMES.index(name) for name in names]] = physical
+    theta[:, [known.index(name) for name in names]] = physical
     alpha = multi_indices(n, config.order)
     projector, fit = _projector(config, xi, w, alpha, germ)
     z = sobol(n, config.germ_samples, config.seed, germ)

@@ -6,6 +6,11 @@ and taken Gaussian, so their variances add (metres of irregularity):
 
 - sensor noise: white accelerometer noise through the inverse and the band at the sample's speed,
   ``inverse.observability`` (sigma_u(v), from the IMU covariance or ``noise_std_mps2``);
+- the estimator's own error (a regularised inverse, the coach's LMMSE design): the error std of
+  the FIR the nominal pipeline runs, ``pipeline.observability.std_m(v)`` (``inverse/design.py``),
+  the posterior of what the sensors could not observe (the nulls) plus their noise through the
+  FIR; it replaces the sensor-noise term, which it holds, and with it the band is honest where
+  the physics is blind;
 - location (the sample's place on the time/chainage axis, from the position fix at the first
   sample on): a time error tau of the stamp shifts the profile, an error du/dt tau, and a
   chainage error xi an error du/dx xi. tau has two independent parts: the residual sensor delay
@@ -39,22 +44,39 @@ from collections.abc import Callable
 
 import numpy as np
 
+from railgsa_ros.inverse.pipeline import InversionPipeline
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.uncertainty.config import UncertaintyConfig
 
 NoiseStd = Callable[[np.ndarray], np.ndarray]  # speeds (K,) m/s -> sigma_u (K,) m
 
 
+def bank_terms(config: UncertaintyConfig, pipeline: InversionPipeline,
+               noise_std_m: NoiseStd | None) -> SensorTerms:
+    """The terms of the band of a bank ``pipeline``: with a regularised inverse (a coach:
+    ``pipeline.observability``, the nominal design's) its error std in place of the sensor
+    noise ``noise_std_m``, which it holds; else the sensor noise (an exact inverse)."""
+    observability = pipeline.observability
+    if observability is None:
+        return SensorTerms(config, noise_std_m)
+    return SensorTerms(config, None, observability.std_m)
+
+
 class SensorTerms:
     """Streams the per-sample std (m) of the sensor terms (module docstring).
 
     ``noise_std_m``: sigma_u(v) of the sensor noise (None or config ``sensor_noise`` false: no
-    noise term). ``std`` keeps the last emitted (stamp, chainage, mean), the first chainage and
-    the stamp time since the first sample for the location term.
+    noise term); ``estimator_std_m``: the regularised estimator's error std at the speed (the
+    coach: ``observability.std_m``, which holds the noise: then give no ``noise_std_m``; None:
+    an exact inverse, no such term; ``bank_terms`` chooses). ``std`` keeps the last emitted
+    (stamp, chainage, mean), the first chainage and the stamp time since the first sample for
+    the location term.
     """
 
-    def __init__(self, config: UncertaintyConfig, noise_std_m: NoiseStd | None) -> None:
+    def __init__(self, config: UncertaintyConfig, noise_std_m: NoiseStd | None,
+                 estimator_std_m: NoiseStd | None = None) -> None:
         self._noise = noise_std_m if config.sensor_noise else None
+        self._estimator = estimator_std_m
         self._delay_std_s = config.delay_std_s
         self._clock_rate = 1e-6 * config.clock_std_ppm
         self._odometry_std = config.odometry_scale_std
@@ -74,21 +96,30 @@ class SensorTerms:
         term)."""
         raw = np.asarray(mean_m, dtype=float)
         mean = np.nan_to_num(raw)
-        noise = np.zeros(mean.shape)
-        if self._noise is not None and speed_mps is not None and mean.size:
-            speed = np.asarray(speed_mps, dtype=float)
-            known = np.isfinite(speed)  # unknown speed: an INVALID sample, no noise term
-            noise = np.where(known, self._noise(np.where(known, speed, 1.0)), 0.0)
-        var = noise ** 2 + (self._scale_std * mean) ** 2 + self._discrepancy_m ** 2
+        noise, estimator = self._at_speed(self._noise, speed_mps, mean.shape), \
+            self._at_speed(self._estimator, speed_mps, mean.shape)
+        var = noise ** 2 + estimator ** 2 + (self._scale_std * mean) ** 2 + \
+            self._discrepancy_m ** 2
         if mean.size:
             var += self.location_variance(np.asarray(stamps_ns), raw, chainage_m)
         gap = np.zeros(mean.shape) if gap_std_m is None else np.asarray(gap_std_m, float)
         var += gap ** 2
         if quality is not None:  # DEGRADED with no gap term: the floor
             degraded = (np.asarray(quality) == Quality.DEGRADED) & (gap == 0)
-            floor = np.maximum(noise, self._gap_floor_m)
+            floor = np.maximum(np.maximum(noise, estimator), self._gap_floor_m)
             var = np.where(degraded, np.maximum(var, floor ** 2), var)
         return np.sqrt(var)
+
+    @staticmethod
+    def _at_speed(term: NoiseStd | None, speed_mps: np.ndarray | None,
+                  shape: tuple[int, ...]) -> np.ndarray:
+        """A speed-dependent std (K,) m at the samples' speeds; 0 without the term, the speed
+        or where the speed is unknown (NaN: an INVALID sample)."""
+        if term is None or speed_mps is None or not shape[0]:
+            return np.zeros(shape)
+        speed = np.asarray(speed_mps, dtype=float)
+        known = np.isfinite(speed)
+        return np.where(known, term(np.where(known, speed, 1.0)), 0.0)
 
     def location_variance(self, stamps_ns: np.ndarray, mean_m: np.ndarray,
                           chainage_m: np.ndarray | None) -> np.ndarray:
