@@ -67,3 +67,20 @@ def test_first_sample_chainage_whatever_the_order(steady, imu_from, odom_from):
     assert np.all(out.speed_mps == SPEED)  # the first samples too: within odom_timeout_s
     assert np.count_nonzero(out.quality != int(Quality.INVALID)) > 0.3 * len(out)
     assert np.max(np.abs(offset)) < 1e-3  # m: under 1 mm, the whole run
+
+
+def test_late_odometry_start_is_decided_alike_live_and_offline(steady):
+    """Odometry starting 20 ms after the IMU: fed as it arrives (IMU blocks of 7 before each
+    odometry message) and as offline reads it (all odometry, then the IMU in one chunk), the
+    same speed, chainage and quality at every output."""
+    ticks = sample_indices(steady.stamps_ns, 50.0)
+    odom = ticks[ticks >= 20]
+    imu = np.arange(steady.stamps_ns.size)
+    live = replay(steady, imu, odom, block=7)
+    stage = InputStage(InversionConfig(rate_hz=steady.rate_hz))
+    offline = Output.concat([
+        stage.odometry(steady.stamps_ns[odom], steady.speed_mps[odom]),
+        stage.imu(steady.stamps_ns, steady.accel), stage.flush()])
+    for name in ('stamps_ns', 'chainage_m', 'speed_mps', 'quality'):
+        np.testing.assert_array_equal(getattr(live, name), getattr(offline, name))
+    np.testing.assert_array_equal(live.u_m, offline.u_m)
