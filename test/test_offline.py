@@ -16,6 +16,7 @@ import pytest
 from railgsa_ros.bag import BagWriter, RunEncoder, read_imu, write_run
 from railgsa_ros.bag.reader import NAV_SAT_FIX, iter_imu
 from railgsa_ros.cli.main import main
+from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.quality import Quality
@@ -389,10 +390,11 @@ def test_a_few_zero_stamps_are_left_out_not_a_memory_error(tmp_path: Path, capsy
                  '--no-progress']) == 0
     summary = json.loads(capsys.readouterr().out)
     assert (out / 'report.html').is_file()
-    # the bag's odometry starts at 5 s (the zero stamps upset its sampling): before it the speed
-    # is unknown (INVALID, the chainage holds), not the first odometry guessed backwards
+    # the bag's odometry starts at 5 s (the zero stamps upset its sampling): the first
+    # odometry sample gives the speed back to odom_timeout_s (1 s) before it, before that the
+    # speed is unknown (INVALID, the chainage holds), not the first odometry guessed further
     read = read_imu(bag)
-    covered = (run.stamps_ns >= read.odom_stamps_ns.min())
+    covered = (run.stamps_ns >= read.odom_stamps_ns.min() - InputOptions().odom_timeout_s * 1e9)
     assert summary['length_km'] * 1e3 == pytest.approx(
         run.chainage_m[-1] - run.chainage_m[covered][0], abs=1.0)
 

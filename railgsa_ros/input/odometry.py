@@ -1,7 +1,8 @@
 """Odometry and speed: the speed at each IMU stamp, and the distance across stretches without one.
 
 The speed at an IMU stamp is the newest odometry sample at or before it if it is not older than
-``odom_timeout_s``, else UNKNOWN (the output is INVALID). Odometry must arrive in stamp order:
+``odom_timeout_s`` (before the stream's first odometry sample: that one, if not newer than
+``odom_timeout_s``), else UNKNOWN (the output is INVALID). Odometry must arrive in stamp order:
 older odometry is counted and ignored, odometry going back by more than ``backward_reset_s``
 restarts it. Non-finite odometry, speeds beyond SPEED_LIMIT_MPS and jumps beyond
 ``speed_step`` from the last accepted speed are counted and ignored; a negative speed is reverse
@@ -36,12 +37,15 @@ def speed_step(dt_ns: np.ndarray | int) -> np.ndarray | float:
 def held_speeds(odom_t: np.ndarray, odom_v: np.ndarray, stamps: np.ndarray, timeout_ns: int
                 ) -> tuple[np.ndarray, np.ndarray, int]:
     """(speed m/s, known, first odometry sample used) at the stamps: the newest odometry
-    sample at or before each, if at most ``timeout_ns`` older; unknown speeds are 0."""
+    sample at or before each, if at most ``timeout_ns`` older; before the first odometry
+    sample (the odometry started after the IMU), that first one, if at most ``timeout_ns``
+    newer: the first IMU sample's chainage then counts the distance to the first odometry
+    sample. Unknown speeds are 0."""
     if odom_t.size == 0:
         return np.zeros(stamps.size), np.zeros(stamps.size, bool), 0
     idx = np.searchsorted(odom_t, stamps, side='right') - 1
     j = np.maximum(idx, 0)
-    known = (idx >= 0) & (stamps - odom_t[j] <= timeout_ns)
+    known = np.abs(stamps - odom_t[j]) <= timeout_ns  # before or after odom_t[j]
     return np.where(known, odom_v[j], 0.0), known, int(j.min())
 
 
