@@ -123,7 +123,8 @@ def test_check_on_a_live_system(start_node: Callable, first_band: Callable, prob
     (['--duration', 'nan'], 'error: --duration: expected a number in (0, 3600], got nan\n'),
     (['--rate', '-5'], 'error: --rate: expected a number in (0, inf], got -5.0\n'),
     (['--sensor', 'mpu6050'], "error: --sensor: unknown preset 'mpu6050'; expected ideal, "
-                              'adxl355, bmi088\n'),
+                              'adxl355, bmi088, adxl355@1000Hz, bmi088@400Hz, bmi088@200Hz or '
+                              'a chip setting chip@ODRHz\n'),
 ])
 def test_usage_errors_exit_2_with_one_line(args: list[str], message: str) -> None:
     result = check(*args)
