@@ -223,7 +223,8 @@ class GridStream:
     it, the pair ``railgsa invert --grid`` runs (through offline.Driver), as one object for a
     node. Methods as InputStage's; each returns the grid points that are finished."""
 
-    def __init__(self, config: InversionConfig, vehicle: VehicleParams | np.ndarray | None = None,
+    def __init__(self, config: InversionConfig,
+                 vehicle: VehicleParams | np.ndarray | VehicleModel | None = None,
                  options: InputOptions | None = None, step_m: float = DEFAULT_STEP_M,
                  noise_variance: float | None = None) -> None:
         self.grid = ChainageGrid.for_config(config, step_m)
