@@ -161,7 +161,7 @@ def test_the_live_node_gives_the_offline_result(bags: dict[str, Path], ros_conte
             outs.append(result)
         return publish(result, live)
 
-    node.emit = emit  # type: ignore[method-assign]
+    node.emit = emit  # type: ignore[method-assign,assignment]
 
     imu: list[bytes] = []
     with open_bag(bag) as reader:

@@ -40,6 +40,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.quality import Quality
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams
 
