@@ -40,7 +40,7 @@ INVERSIONS = {
     'smoother': ['--method', 'kalman', '--smoother'],
     'grid': ['--grid', '0.25'],
     'bands': ['--bands'],
-    'wide': ['--band', 'wide', '--sensor-delay', 'adxl355'],
+    'wide': ['--band', 'wide', '--sensor-delay', 'adxl355@1000Hz'],
 }
 
 #: summary keys that differ between runs: paths of this run's temporary folder, timing
