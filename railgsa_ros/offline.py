@@ -14,6 +14,10 @@ Speed: the stage's (the newest odometry sample at or before each stamp within
 odom_timeout_s, else unknown: INVALID outputs), the odometry times its scale (1 unless GNSS
 corrected it, ``railgsa_ros.location``); a fixed speed only when the options say so
 (``use_odom`` false with ``speed_mps``).
+
+Vehicle: a quarter car (VehicleParams) or a coach (``railgsa_ros.models.vehicle_of``): the
+stage inverts the coach from the bag's accelerometer and, when its IMU has a gyro, the pitch
+rate (angular_velocity.y). The uncertainty band does not take a coach yet (``COACH_BAND``).
 """
 
 from __future__ import annotations
@@ -28,13 +32,14 @@ import numpy as np
 
 from railgsa_ros.bag import ImuStream, open_bag
 from railgsa_ros.bag.reader import iter_imu
-from railgsa_ros.errors import InputError
+from railgsa_ros.errors import ConfigError, InputError
 from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.rate import count_steps
 from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.location import Location, Reference, gnss_pass
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.samples import split
 from railgsa_ros.uncertainty import (
     Band,
@@ -45,6 +50,10 @@ from railgsa_ros.uncertainty import (
 )
 from railgsa_ros.uq.distributions import Distribution
 from railgsa_ros.vehicle import VehicleParams
+
+#: why a coach gets no uncertainty band (the nominal output only)
+COACH_BAND = ('the uncertainty band does not take a coach yet (issue 21): the nominal '
+              'reconstruction only')
 
 
 @dataclass(frozen=True)
@@ -137,15 +146,18 @@ class Driver:
     (GNSS-corrected wheel diameter); ``quantiles`` False: bands of the mean only
     (``UncertaintyStream``)."""
 
-    def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams,
+    def __init__(self, config: UncertaintyConfig, vehicle: VehicleParams | VehicleModel,
                  dists: Mapping[str, Distribution] | None, options: InputOptions,
                  speed_scale: float = 1.0, quantiles: bool = True) -> None:
         self.config = config
         self.options = options
         self.nominal = InputStage(config.inversion, vehicle, options=options)
-        self.bank = (UncertaintyStream(config, vehicle, dists, options=options, defer=True,
-                                       quantiles=quantiles, stage=self.nominal)
-                     if dists is not None else None)
+        self.bank: UncertaintyStream | None = None
+        if dists is not None:
+            if not isinstance(vehicle, VehicleParams):
+                raise ConfigError(COACH_BAND)
+            self.bank = UncertaintyStream(config, vehicle, dists, options=options, defer=True,
+                                          quantiles=quantiles, stage=self.nominal)
         self.speed_scale = float(speed_scale)
         self._pending = Output.concat([])  # nominal samples awaiting a band
 
@@ -169,7 +181,8 @@ class Driver:
             updates += self._band(last=False)
         if piece.stamps_ns.size:
             outs.append(self.nominal.imu(piece.stamps_ns, piece.accel, piece.frame_ids,
-                                         piece.covariance))
+                                         piece.covariance, piece.angular_velocity,
+                                         piece.gyro_covariance))
             updates += self._band(last=False)
         return self._join(outs, updates)
 

@@ -448,7 +448,9 @@ class ImuStream:
     header stamp is zero ('log_time'); accel (T, 3) m/s^2, NaN where REP 145 marks the field
     absent (linear_acceleration_covariance[0] = -1 or NaN); frame_ids (T,) str; covariance (T, 9)
     as recorded ((m/s^2)^2, row-major, zeros = unknown); odom_stamps_ns (M,) and speed_mps (M,)
-    from Odometry twist.twist.linear.x (empty when the bag has no odometry topic).
+    from Odometry twist.twist.linear.x (empty when the bag has no odometry topic);
+    angular_velocity (T, 3) rad/s and gyro_covariance (T, 9) (rad/s)^2 as recorded (REP 145:
+    gyro_covariance[:, 0] = -1 where the sensor has no gyro).
     """
 
     path: Path
@@ -462,6 +464,8 @@ class ImuStream:
     speed_mps: np.ndarray
     stamp_source: str = 'header'
     gnss: GnssFixes | None = None  # NavSatFix messages of the same span (iter_imu), if asked
+    angular_velocity: np.ndarray | None = None
+    gyro_covariance: np.ndarray | None = None
 
     def accel_variance(self, default: float) -> np.ndarray:
         """Per-sample, per-axis variance (T, 3) in (m/s^2)^2: the recorded diagonal, ``default``
@@ -516,7 +520,9 @@ def _imu_stream(path: Path, imu_topic: str, imu: TopicData, odom: TopicData | No
         odom_stamps = odom.log_time_ns if odom_source == 'log_time' else odom.stamps_ns
         speed = odom.values[:, ODOMETRY_FIELDS['twist.twist.linear'].start].copy()
     return ImuStream(path, imu_topic, stamps, imu.log_time_ns, accel, imu.strings[0], cov.copy(),
-                     odom_stamps, speed, imu_source, gnss)
+                     odom_stamps, speed, imu_source, gnss,
+                     imu.values[:, IMU_FIELDS['angular_velocity']].copy(),
+                     imu.values[:, IMU_FIELDS['angular_velocity_covariance']].copy())
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # the command imports its modules when it runs (fast --help)
     from railgsa_ros.input.options import InputOptions
     from railgsa_ros.inverse.config import InversionConfig
     from railgsa_ros.location import Location, Reference
+    from railgsa_ros.models import VehicleModel
     from railgsa_ros.offline import Driver, Source
     from railgsa_ros.uncertainty import Band
     from railgsa_ros.vehicle import VehicleParams
@@ -172,7 +173,7 @@ class Inputs:
     pieces: Iterator[ImuStream]
     config: InversionConfig
     options: InputOptions
-    vehicle: VehicleParams
+    vehicle: VehicleParams | VehicleModel
     location: Location
 
 
@@ -183,8 +184,8 @@ def load_inputs(args: argparse.Namespace) -> Inputs:
     import numpy as np
 
     from railgsa_ros.errors import ConfigError, InputError
+    from railgsa_ros.models import vehicle_of
     from railgsa_ros.offline import Source, chunks, locate, nominal_rate_hz, peek
-    from railgsa_ros.vehicle import VehicleParams, load_vehicle
 
     if args.speed is not None and not (np.isfinite(args.speed) and args.speed > 0):
         raise ConfigError(f'--speed: expected a positive number of m/s, got {args.speed!r}')
@@ -194,7 +195,7 @@ def load_inputs(args: argparse.Namespace) -> Inputs:
     if args.speed is None and args.odom_topic not in source.topics():
         raise InputError(f'{args.bag}: no odometry on {args.odom_topic} and no --speed: the '
                          'speed is unknown (give --speed MPS or --odom-topic)')
-    vehicle = load_vehicle(args.vehicle) if args.vehicle else VehicleParams()
+    vehicle = vehicle_of(args.vehicle or None)
     start = int(first.stamps_ns[0]) if first.stamps_ns.size else 0
     return Inputs(source, pieces, cfg, options, vehicle, locate(source, start, reference))
 
@@ -204,10 +205,12 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
     chainage grid, ``inverse.grid.grid_config``) and with --bands uncertainty_node's stream for
     the same samples, the odometry scaled as GNSS found it."""
     from railgsa_ros.cli._params import uncertainty_params
+    from railgsa_ros.errors import ConfigError
     from railgsa_ros.inverse.grid import grid_config
-    from railgsa_ros.offline import Driver
+    from railgsa_ros.offline import COACH_BAND, Driver
     from railgsa_ros.uncertainty import UncertaintyConfig
     from railgsa_ros.uncertainty.parameters import load_uncertainty, table3, with_discrepancy
+    from railgsa_ros.vehicle import VehicleParams
 
     base = UncertaintyConfig()
     if args.uncertainty_params:  # the inversion comes from --params (equal to the node's)
@@ -215,6 +218,8 @@ def make_driver(args: argparse.Namespace, inp: Inputs) -> Driver:
     config = grid_config(inp.config) if args.grid is not None else inp.config
     dists = None
     if args.bands:
+        if not isinstance(inp.vehicle, VehicleParams):
+            raise ConfigError(f'--bands: {COACH_BAND}')
         dists = load_uncertainty(args.uncertainty) if args.uncertainty else table3(inp.vehicle)
         base = with_discrepancy(base, args.uncertainty)
     return Driver(base.with_(inversion=config, qoi=''), inp.vehicle, dists, inp.options,
@@ -314,13 +319,17 @@ def run(args: argparse.Namespace) -> int:
     from railgsa_ros.fileio import refuse_overlap
     from railgsa_ros.inverse.grid import ChainageGrid
     from railgsa_ros.inverse.pipeline import Output
-    from railgsa_ros.offline import steps
+    from railgsa_ros.offline import COACH_BAND, steps
+    from railgsa_ros.vehicle import VehicleParams
 
     refuse_overlap(args.csv or args.out, (args.bag, args.params, args.vehicle, args.uncertainty,
                                           args.uncertainty_params))
     if args.grid is not None and args.bands:
         raise ConfigError('--bands: the uncertainty band is per IMU sample; not with --grid')
     inp = load_inputs(args)
+    if args.bands and not isinstance(inp.vehicle, VehicleParams):
+        print(f'warning: --bands: {COACH_BAND}', file=sys.stderr)
+        args.bands = False
     driver = make_driver(args, inp)
     grid = ChainageGrid.for_config(inp.config, args.grid) if args.grid is not None else None
     count = usable = 0

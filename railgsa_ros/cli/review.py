@@ -171,10 +171,12 @@ def build_options(args: argparse.Namespace) -> Any:
     from dataclasses import fields
 
     from railgsa_ros.inverse.config import InversionConfig
+    from railgsa_ros.models import vehicle_of
+    from railgsa_ros.offline import COACH_BAND
     from railgsa_ros.review.results import ReviewOptions
     from railgsa_ros.uncertainty import UncertaintyConfig
     from railgsa_ros.uncertainty.parameters import load_uncertainty, table3, with_discrepancy
-    from railgsa_ros.vehicle import VehicleParams, load_vehicle
+    from railgsa_ros.vehicle import VehicleParams
 
     params = parameters(args)
     known = {f.name for f in fields(UncertaintyConfig)} | {f.name for f in
@@ -182,9 +184,13 @@ def build_options(args: argparse.Namespace) -> Any:
     config = UncertaintyConfig.from_mapping({k: v for k, v in params.items() if k in known},
                                             source=args.params or 'command line')
     vehicle_file = args.vehicle or params.get('vehicle_file') or None
-    vehicle = load_vehicle(vehicle_file) if vehicle_file else VehicleParams()
+    vehicle = vehicle_of(vehicle_file)
     dists = None
-    if not args.no_uncertainty:
+    if args.no_uncertainty:
+        pass
+    elif not isinstance(vehicle, VehicleParams):
+        print(f'warning: {COACH_BAND}', file=sys.stderr)
+    else:
         source = args.uncertainty or params.get('uncertainty_file') or None
         dists = load_uncertainty(source) if source else table3(vehicle)
         config = with_discrepancy(config, source)

@@ -26,7 +26,8 @@ import numpy as np
 from railgsa_ros.input.findings import OK, WARN
 from railgsa_ros.input.sanitize import SMALL
 
-#: stamps (T,) int64 ns, accel (T, 3), frame ids (T,) str or object, covariance (T, 9) or None
+#: stamps (T,) int64 ns, accel (T, 3) (a coach's stage: (T, 4) with the pitch rate), frame ids
+#: (T,) str or object, covariance (T, 9) or None
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 #: Columns and the arrival indices (T,) int64
 Store = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]
@@ -157,7 +158,8 @@ class Reorder:
         if store is None or with_cov != (store[3] is not None) or hi + n > store[0].size:
             kept = (*_take(held, slice(count, None)), self._held_idx[count:])
             room = STORE_ROOM * (kept[0].size + n)
-            store = (np.empty(room, np.int64), np.empty((room, 3)), np.empty(room, object),
+            store = (np.empty(room, np.int64), np.empty((room, cols[1].shape[1])),
+                     np.empty(room, object),
                      np.empty((room, 9)) if with_cov else None, np.empty(room, np.int64))
             lo, hi = 0, kept[0].size
             _write(store, kept, 0)

@@ -7,6 +7,11 @@ It runs, in this order:
 - REP 145 input: accel (T, 3) in the sensor frame, the vertical axis picked by ``accel_axis``;
   covariance[0] = -1 (or NaN) marks the acceleration absent (the sample is rejected as ``nan``),
   an all-zero covariance is unknown; zero or negative stamps are malformed;
+- a coach (``model``): the pitch rate, angular_velocity.y (REP 103), is a data channel when the
+  first IMU message carries a gyro (angular_velocity_covariance[0] not -1 or NaN), decided once
+  for the stage; its rows ride as a fourth accel column through the re-order buffer and the
+  held queue, so they stay with their samples; the gyro variance is the median of the first
+  messages' angular_velocity_covariance[4], else ``gyro_noise_std_rads``^2;
 - the re-order buffer (``input.reorder``) and the time resets (a new stream);
 - the arrival checks (``input.monitors``: gravity, rate and jitter, frame, mounting), the noise
   decision (``input.noise``) and the vertical projection (``input.mounting``);
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import replace
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -45,9 +51,11 @@ from railgsa_ros.input.options import InputOptions
 from railgsa_ros.input.reorder import Reorder
 from railgsa_ros.input.sanitize import SMALL, Clean, InputSanitizer, text_array
 from railgsa_ros.inverse.config import InversionConfig
+from railgsa_ros.inverse.design import model_theta
 from railgsa_ros.inverse.observability import STANDSTILL_MPS
 from railgsa_ros.inverse.pipeline import InversionPipeline, Output
 from railgsa_ros.inverse.quality import Quality, quality_counts
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.vehicle import VehicleParams, as_theta
 
 _INVALID = int(Quality.INVALID)
@@ -60,19 +68,29 @@ class InputStage:
     it sets the noise floor, so every stage with the same config and vehicle makes the same
     decisions; ``bank``: theta (P, 5) for a bank pipeline (uncertainty: outputs u (P, K)), else
     the nominal vehicle is inverted; ``options``: InputOptions; ``noise_variance``: a fixed
-    accelerometer variance ((m/s^2)^2) instead of the rule from the data.
+    accelerometer variance ((m/s^2)^2) instead of the rule from the data; ``model``: a
+    ``railgsa_ros.models`` vehicle (a coach inverts with its design, ``vehicle`` then its
+    theta (n,), default its nominal; None or a quarter car: the quarter car of ``vehicle``);
+    a model given as ``vehicle`` is that model at its nominal theta.
     """
 
     def __init__(self, config: InversionConfig | None = None,
-                 vehicle: VehicleParams | np.ndarray | None = None, *,
+                 vehicle: VehicleParams | np.ndarray | VehicleModel | None = None, *,
                  bank: np.ndarray | None = None, options: InputOptions | None = None,
-                 noise_variance: float | None = None) -> None:
+                 noise_variance: float | None = None,
+                 model: VehicleModel | None = None) -> None:
         self.config = config if config is not None else InversionConfig()
-        self.theta = as_theta(vehicle if vehicle is not None else VehicleParams())
+        if _is_model(vehicle):
+            model, vehicle = vehicle, None
+        #: the coach model (None: the quarter car)
+        self.model = None if model is None or model.kind == 'quarter_car' else model
+        self.gyro: bool | None = None  #: a coach's pitch-rate channel (None: not decided)
+        self.theta = self._as_theta(vehicle if vehicle is not None else
+                                    VehicleParams() if model is None else model.theta)
         if self.theta.ndim != 1:
             raise ConfigError('vehicle: the policy takes the nominal vehicle (5,); pass a '
                               'parameter bank as bank=')
-        self.bank = None if bank is None else np.atleast_2d(as_theta(bank))
+        self.bank = None if bank is None else np.atleast_2d(self._as_theta(bank))
         self.options = options if options is not None else InputOptions()
         self.noise = Noise(noise_variance)  #: the noise decision, its floor and speed limits
         self.pipeline: InversionPipeline | None = None
@@ -97,7 +115,7 @@ class InputStage:
         self._mounting = MountingMonitor(self.mounting, self._findings)
         self._reorder = Reorder(*self.options.reorder_limits(self.config.rate_hz))
         self.options.check_speed(self.config)
-        if noise_variance is not None:
+        if noise_variance is not None and self.model is None:  # a coach waits for its gyro
             self._build()
 
     # ------------------------------------------------------------------ public interface
@@ -132,6 +150,11 @@ class InputStage:
         return self.noise.source
 
     @property
+    def channels(self) -> tuple[str, ...]:
+        """The data channels the pipeline inverts (model channel names, accel first)."""
+        return ('accel_z', 'pitch_rate') if self.gyro else ('accel_z',)
+
+    @property
     def counters(self) -> dict[str, int]:
         """Counts by reason: the sanitiser's and the pipeline's (over every rebuild), plus
         reordered and late (IMU samples re-ordered within reorder_window_s, and beyond it),
@@ -161,14 +184,20 @@ class InputStage:
 
     def imu(self, stamps_ns: np.ndarray, accel: np.ndarray,
             frame_ids: np.ndarray | None = None,
-            covariance: np.ndarray | None = None) -> Output:
+            covariance: np.ndarray | None = None,
+            angular_velocity: np.ndarray | None = None,
+            gyro_covariance: np.ndarray | None = None) -> Output:
         """IMU samples: stamps (T,) int64 ns, accel (T, 3) m/s^2 in the sensor frame (REP 145,
         +g up at rest), frame_ids (T,) str (None: the expected one), covariance (T, 9) REP 145
-        linear_acceleration_covariance (None: unknown). Returns the outputs now final."""
+        linear_acceleration_covariance (None: unknown); a coach also takes angular_velocity
+        (T, 3) rad/s and gyro_covariance (T, 9) angular_velocity_covariance (None: unknown).
+        Returns the outputs now final."""
         stamps = np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64))
         accel = np.array(accel, dtype=float, ndmin=2)
         if accel.shape != (stamps.size, 3):
             raise ConfigError(f'accel: expected shape ({stamps.size}, 3), got {accel.shape}')
+        if self.model is not None:
+            accel = self._with_rate(accel, angular_velocity, gyro_covariance)
         frames = np.full(stamps.size, self.config.frame_id) \
             if frame_ids is None else text_array(frame_ids)
         cov = None if covariance is None else \
@@ -203,19 +232,26 @@ class InputStage:
         return self._restart(reason)
 
     def rebuild(self, config: InversionConfig | None = None,
-                vehicle: VehicleParams | np.ndarray | None = None, *,
+                vehicle: VehicleParams | np.ndarray | VehicleModel | None = None, *,
                 bank: np.ndarray | None = None,
                 options: InputOptions | None = None) -> Output:
         """A parameter change: flush the old filters (their outputs are returned), build new
         ones that continue the chainage; held samples and the noise decision are kept. A
         change the filters do not see (input options alone; speed_mps while the speed comes
         from odometry) is applied to the running ones (``reconfigure`` counted): a rebuild
-        costs the band delay of INVALID outputs, 5 s of track."""
+        costs the band delay of INVALID outputs, 5 s of track. A model as ``vehicle`` (a node's
+        vehicle_file) is inverted at its nominal theta; another model kind rebuilds."""
+        changed = False  # a coach (its geometry may differ) or a change of model kind
+        if _is_model(vehicle):
+            coach = None if vehicle.kind == 'quarter_car' else vehicle
+            changed = coach is not None or self.model is not None
+            self.model = coach
         seen = config if config is not None else self.config  # what the filters see of it
         if self.options.use_odom and (options is None or options.use_odom):
             seen = replace(seen, speed_mps=self.config.speed_mps)  # unused with odometry
-        keep = self.pipeline is not None and bank is None and seen == self.config and (
-            vehicle is None or np.array_equal(as_theta(vehicle), self.theta))
+        keep = self.pipeline is not None and not changed and bank is None and \
+            seen == self.config and (
+            vehicle is None or np.array_equal(self._as_theta(vehicle), self.theta))
         out = self._empty()
         if self.pipeline is not None and not keep:
             out = self._restart()
@@ -223,8 +259,8 @@ class InputStage:
             self._start_chainage = self.pipeline.chainage_m
             self.pipeline = self._bank = None
         self.config = config if config is not None else self.config
-        self.theta = as_theta(vehicle) if vehicle is not None else self.theta
-        self.bank = np.atleast_2d(as_theta(bank)) if bank is not None else self.bank
+        self.theta = self._as_theta(vehicle) if vehicle is not None else self.theta
+        self.bank = np.atleast_2d(self._as_theta(bank)) if bank is not None else self.bank
         self.options = options if options is not None else self.options
         for monitor in (self._odom, self._gravity, self._rate, self._rest, self._frame,
                         self._rejected, self._acceleration):
@@ -254,7 +290,7 @@ class InputStage:
         """Hand the accepted batches to a bank pipeline over theta (P, 5) as well (the
         uncertainty band of the same stream, offline): the same decisions, outputs u (P, K)
         (NaN where INVALID) collected for ``bank_outputs``."""
-        self._bank_theta = np.atleast_2d(as_theta(theta))
+        self._bank_theta = np.atleast_2d(self._as_theta(theta))
         if self.pipeline is not None:
             self._build_bank()
 
@@ -278,6 +314,31 @@ class InputStage:
         return _invalid_nan(out) if counts['invalid'] else out
 
     # ------------------------------------------------------------------ building
+    def _as_theta(self, vehicle: VehicleParams | np.ndarray | VehicleModel) -> np.ndarray:
+        """theta of the stage's model: the coach's (n,), else the quarter car's (5,) (a
+        model's: its nominal)."""
+        values: Any = vehicle.theta if _is_model(vehicle) else vehicle
+        return as_theta(values) if self.model is None else model_theta(self.model, values)
+
+    def _with_rate(self, accel: np.ndarray, gyro: np.ndarray | None,
+                   cov: np.ndarray | None) -> np.ndarray:
+        """A coach's accel rows (T, 3), with the pitch rate (rad/s, NaN where REP 145 marks
+        the gyro absent) as a fourth column when the stage uses the gyro; the first call
+        decides that and notes the reported gyro variances."""
+        n = accel.shape[0]
+        if gyro is not None:
+            gyro = np.asarray(gyro, dtype=float).reshape(n, 3)
+        cov = None if cov is None else np.asarray(cov, dtype=float).reshape(n, 9)
+        absent = np.zeros(n, bool) if cov is None else (np.isnan(cov[:, 0]) | (cov[:, 0] == -1))
+        if self.gyro is None and n:
+            self.gyro = gyro is not None and not absent[0]
+        if not self.gyro:
+            return accel
+        rate = np.full(n, np.nan) if gyro is None else np.where(absent, np.nan, gyro[:, 1])
+        if cov is not None:
+            self.noise.note_gyro(cov, absent, self._held.received)
+        return np.column_stack([accel, rate])
+
     @property
     def _channels(self) -> int | None:
         return None if self.bank is None else self.bank.shape[0]
@@ -301,32 +362,45 @@ class InputStage:
         self._sanitizer.reset()
         return self.finish(out)
 
-    def _feed(self, clean: Clean, quality: np.ndarray) -> Output:
-        """A sanitised batch into the pipeline (and the bank pipeline)."""
+    def _feed(self, clean: Clean, quality: np.ndarray, rates: np.ndarray | None) -> Output:
+        """A sanitised batch into the pipeline (and the bank pipeline); ``rates``: the raw
+        batch's pitch rates (T,) rad/s when the stage uses the gyro."""
         assert self.pipeline is not None
-        out = self.pipeline.feed(clean, quality)
+        count = None if rates is None else rates.size
+        out = self.pipeline.feed(clean, quality, rates, count)
         if self._bank is not None:
-            self._bank_out.append(_invalid_nan(self._bank.feed(clean, quality)))
+            self._bank_out.append(_invalid_nan(self._bank.feed(clean, quality, rates, count)))
         return out
+
+    def _pipeline(self, theta: np.ndarray, variance: float) -> InversionPipeline:
+        """A pipeline over theta (the nominal or a bank) for the stage's model and channels,
+        graded as the nominal one."""
+        if self.model is None:
+            return InversionPipeline(self.config, theta, variance,
+                                     start_chainage_m=self._start_chainage, nominal=self.theta)
+        config = self.config if self.noise.gyro_variance is None else self.config.with_(
+            gyro_noise_std_rads=float(np.sqrt(self.noise.gyro_variance)))
+        return InversionPipeline(config, theta, variance, start_chainage_m=self._start_chainage,
+                                 nominal=self.theta, model=self.model, channels=self.channels)
 
     def _build_bank(self) -> None:
         """The bank pipeline of ``feed_bank``, graded as the nominal one."""
         if self._bank_theta is not None:
-            self._bank = InversionPipeline(self.config, self._bank_theta, self.noise_variance,
-                                           start_chainage_m=self._start_chainage,
-                                           nominal=self.theta)
+            assert self.noise_variance is not None  # built with the nominal pipeline
+            self._bank = self._pipeline(self._bank_theta, self.noise_variance)
 
     def _build(self) -> None:
         """The sanitiser, the pipeline and the noise floor for the decided noise variance."""
         cfg, opt, variance = self.config, self.options, self.noise_variance
         assert variance is not None  # called once the noise is decided
         self._sanitizer = InputSanitizer.for_config(cfg, opt.stuck_s, opt.backward_reset_s)
-        self.pipeline = InversionPipeline(
-            cfg, self.bank if self.bank is not None else self.theta, variance,
-            start_chainage_m=self._start_chainage, nominal=self.theta)
+        if self.model is not None:
+            self.gyro = bool(self.gyro)  # filters built before any IMU message: no gyro
+        self.pipeline = self._pipeline(self.bank if self.bank is not None else self.theta,
+                                       variance)
         self._build_bank()
         self._acceleration.seen = 0  # the new pipeline's speed_change count seen so far
-        self.noise.design(cfg, self.theta, self._findings)
+        self.noise.design(cfg, self.theta, self._findings, self.pipeline.observability)
 
     def _decide_noise(self) -> None:
         self.noise.decide(self.config)
@@ -356,9 +430,11 @@ class InputStage:
 
     def _arrive(self, stamps: np.ndarray, accel: np.ndarray, frames: np.ndarray,
                 cov: np.ndarray | None) -> Output:
-        """``_intake`` of samples of one stream (no time reset among them)."""
+        """``_intake`` of samples of one stream (no time reset among them); a coach's pitch
+        rate rides in a fourth accel column to the held queue."""
         small = stamps.size <= SMALL
         held = self._held
+        full, accel = accel, accel[:, :3]  # full: with the rate column, if any
         if cov is not None:
             if small and held.received >= NOISE_SAMPLES:  # the mask only where needed
                 for i, c in enumerate(cov[:, 0].tolist()):
@@ -394,7 +470,7 @@ class InputStage:
         if newest is not None:
             held.newest_imu = max(held.newest_imu, newest)
         self._mounting.report()
-        held.extend(stamps, accel, vert, frames, np.maximum(flags, mount), arrival)
+        held.extend(stamps, full, vert, frames, np.maximum(flags, mount), arrival)
         return self._release(final=False)
 
     # ------------------------------------------------------------------ release
@@ -417,7 +493,8 @@ class InputStage:
         count = len(self._held) if final else self._ready()
         if count == 0:
             return self._empty()
-        stamps, accel, vert, frames, flags = self._held.pop(count)
+        stamps, full, vert, frames, flags = self._held.pop(count)
+        accel, rates = full[:, :3], (full[:, 3] if full.shape[1] > 3 else None)
         speed, known = self._odom.speeds(stamps)
         if count <= SMALL:
             v, k = speed.tolist(), known.tolist()
@@ -436,13 +513,14 @@ class InputStage:
         missed = self._odom.missed_distance(stamps, speed, known)
         if not missed:  # the usual case: one batch
             clean = sanitizer.process(stamps, vert, speed, checked)
-            out = self._feed(clean, clean.carry(quality))
+            out = self._feed(clean, clean.carry(quality), rates)
         else:  # the chainage moves on where the speed is known again
             parts, lo = [], 0
             for at, metres in (*missed, (count, 0.0)):
                 clean = sanitizer.process(stamps[lo:at], vert[lo:at], speed[lo:at],
                                           None if checked is None else checked[lo:at])
-                parts.append(self._feed(clean, clean.carry(quality[lo:at])))
+                parts.append(self._feed(clean, clean.carry(quality[lo:at]),
+                                        None if rates is None else rates[lo:at]))
                 for each in (pipeline, self._bank):
                     if each is not None:
                         each.add_distance(metres)
@@ -450,6 +528,11 @@ class InputStage:
             out = Output.concat(parts, self._channels)
         self._rejected.check(count, sanitizer.counters['accepted'] - before)
         return self.finish(out)
+
+
+def _is_model(vehicle: object) -> TypeGuard[VehicleModel]:
+    """Whether ``vehicle`` is a ``railgsa_ros.models`` model (not parameters)."""
+    return hasattr(vehicle, 'kind')
 
 
 def _invalid_nan(out: Output) -> Output:

@@ -40,6 +40,7 @@ from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.convolve import PartitionedFir
 from railgsa_ros.inverse.pipeline import Output
 from railgsa_ros.inverse.quality import Quality
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.samples import join
 from railgsa_ros.vehicle import VehicleParams
 
@@ -223,7 +224,8 @@ class GridStream:
     it, the pair ``railgsa invert --grid`` runs (through offline.Driver), as one object for a
     node. Methods as InputStage's; each returns the grid points that are finished."""
 
-    def __init__(self, config: InversionConfig, vehicle: VehicleParams | np.ndarray | None = None,
+    def __init__(self, config: InversionConfig,
+                 vehicle: VehicleParams | np.ndarray | VehicleModel | None = None,
                  options: InputOptions | None = None, step_m: float = DEFAULT_STEP_M,
                  noise_variance: float | None = None) -> None:
         self.grid = ChainageGrid.for_config(config, step_m)

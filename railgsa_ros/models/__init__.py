@@ -21,12 +21,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from railgsa_ros.errors import ConfigError
 from railgsa_ros.models.base import ModeInfo, VehicleModel, delayed_sum
 
-__all__ = ['ModeInfo', 'VehicleModel', 'as_model', 'delayed_sum', 'load_model']
+if TYPE_CHECKING:
+    from railgsa_ros.models.coach import CoachModel
+    from railgsa_ros.vehicle import VehicleParams
+
+__all__ = ['ModeInfo', 'VehicleModel', 'as_model', 'delayed_sum', 'load_model', 'vehicle_of']
 
 
 def load_model(path_or_doc: str | Path | Mapping[str, Any]) -> VehicleModel:
@@ -71,3 +75,16 @@ def as_model(vehicle: Any) -> VehicleModel:
     if vehicle is None or isinstance(vehicle, VehicleParams):
         return QuarterCarModel(vehicle)
     return QuarterCarModel(VehicleParams(*as_theta(vehicle).tolist()))
+
+
+def vehicle_of(path: str | Path | None) -> VehicleParams | CoachModel:
+    """What the entry points invert for a vehicle file: VehicleParams for a quarter car (the
+    paper's Table 1 without a file), the model for a coach; ConfigError naming the file
+    otherwise."""
+    from railgsa_ros.models.coach import CoachModel
+    from railgsa_ros.vehicle import VehicleParams, load_vehicle
+
+    if path is None:
+        return VehicleParams()
+    model = load_model(path)
+    return model if isinstance(model, CoachModel) else load_vehicle(path)

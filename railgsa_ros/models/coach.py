@@ -195,6 +195,10 @@ class CoachModel:
                                             self._accel_rows[1:]])
         self._powers = np.array([2, 1] + [2] * (len(imus) - 1))
 
+    def as_dict(self) -> dict[str, float]:
+        """The nominal parameters by name (SI units), as VehicleParams.as_dict."""
+        return self.params.as_dict()
+
     @classmethod
     def from_doc(cls, doc: Mapping[str, Any]) -> CoachModel:
         """From a parsed coach file (config/vehicles/coach.yaml): ``model: coach``,

@@ -25,6 +25,8 @@ from railgsa_ros.bag.messages import IMU, IMU_FIELDS, ODOMETRY, ODOMETRY_FIELDS
 NS_PER_S = 1_000_000_000
 _ACCEL = IMU_FIELDS['linear_acceleration']
 _COV = IMU_FIELDS['linear_acceleration_covariance']
+_GYRO = IMU_FIELDS['angular_velocity']
+_GYRO_COV = IMU_FIELDS['angular_velocity_covariance']
 _SPEED = ODOMETRY_FIELDS['twist.twist.linear'].start
 
 
@@ -36,6 +38,8 @@ class ImuBatch:
     accel: np.ndarray      #: float (K, 3), specific force x, y, z incl. gravity, m/s^2
     frame_ids: np.ndarray  #: str (K,), header.frame_id
     covariance: np.ndarray  #: float (K, 9), linear_acceleration_covariance as sent (REP 145)
+    angular_velocity: np.ndarray  #: float (K, 3), rad/s (a coach's pitch rate: y, REP 103)
+    gyro_covariance: np.ndarray  #: float (K, 9), angular_velocity_covariance as sent (REP 145)
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
@@ -53,7 +57,8 @@ def imu_batch(raws: Sequence[bytes], fallback: Fallback | None = None) -> tuple[
     good = _valid_stamps(dec) & (dec.strings[0] != '')
     if not good.all():
         dec = Decoded(dec.stamps_ns[good], (dec.strings[0][good],), dec.values[good])
-    batch = ImuBatch(dec.stamps_ns, dec.values[:, _ACCEL], dec.strings[0], dec.values[:, _COV])
+    batch = ImuBatch(dec.stamps_ns, dec.values[:, _ACCEL], dec.strings[0], dec.values[:, _COV],
+                     dec.values[:, _GYRO], dec.values[:, _GYRO_COV])
     return batch, len(raws) - len(batch)
 
 

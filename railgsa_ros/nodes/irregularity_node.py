@@ -51,6 +51,8 @@ from railgsa_ros.input.stage import InputStage
 from railgsa_ros.inverse.config import InversionConfig
 from railgsa_ros.inverse.grid import GridOutput, GridStream
 from railgsa_ros.inverse.pipeline import Output
+from railgsa_ros.models import vehicle_of
+from railgsa_ros.models.coach import CoachModel
 from railgsa_ros.nodes.diagnostics import ERROR, OK, STALE, LatencyWindow, Report, quality_values
 from railgsa_ros.nodes.imu_conversion import ImuBatch
 from railgsa_ros.nodes.lifecycle import run
@@ -75,14 +77,25 @@ SPECS = (*INVERSION_SPECS, *VEHICLE_SPECS, *NODE_SPECS, *IRREGULARITY_SPECS)
 #: parameters whose change rebuilds the policy (old filters flushed, chainage continued)
 MODEL_PARAMS = frozenset((*(s.name for s in INVERSION_SPECS + VEHICLE_SPECS),
                           *(f.name for f in fields(InputOptions))))
-Model = tuple[InversionConfig, VehicleParams, InputOptions]
+Model = tuple[InversionConfig, VehicleParams | CoachModel, InputOptions]
 
 
 def model_inputs(values: Mapping[str, Any]) -> Model:
     """Inversion config, vehicle and input options of parameter ``values`` (ConfigError with
-    the reason if invalid)."""
-    return (inversion_config(values), VehicleParams(**{n: values[n] for n in PARAM_NAMES}),
+    the reason if invalid); the vehicle is the coach of a coach ``vehicle_file`` (it takes
+    angular_velocity.y from the Imu messages as its pitch rate), else m_s..c."""
+    coach = coach_file(values)
+    return (inversion_config(values),
+            coach if coach is not None else VehicleParams(**{n: values[n] for n in PARAM_NAMES}),
             InputOptions.from_mapping(values))
+
+
+def coach_file(values: Mapping[str, Any]) -> CoachModel | None:
+    """The coach of ``vehicle_file``, None without one or for a quarter car."""
+    if not values['vehicle_file']:
+        return None
+    vehicle = vehicle_of(values['vehicle_file'])
+    return vehicle if isinstance(vehicle, CoachModel) else None
 
 
 def build_model(values: Mapping[str, Any], noise_variance: float | None = None) -> InputStage:
@@ -167,7 +180,7 @@ class IrregularityNode(StreamNode):
     def _declare_parameters(self) -> dict[str, Any]:
         """Declare every parameter; vehicle_file overrides m_s..c. ConfigError if invalid."""
         values = declare(self, SPECS)
-        if values['vehicle_file']:
+        if values['vehicle_file'] and coach_file(values) is None:  # a quarter car's m_s..c
             vehicle = vehicle_values(values)
             results = self.set_parameters([Parameter(n, value=vehicle[n]) for n in PARAM_NAMES])
             for name, result in zip(PARAM_NAMES, results, strict=True):
@@ -219,7 +232,8 @@ class IrregularityNode(StreamNode):
         outs = [self._switch_model()]
         if batch is not None:
             outs.append(self._guarded(lambda: self.policy.imu(
-                batch.stamps_ns, batch.accel, batch.frame_ids, batch.covariance)))
+                batch.stamps_ns, batch.accel, batch.frame_ids, batch.covariance,
+                batch.angular_velocity, batch.gyro_covariance)))
             self._grid_step(lambda g: g.imu(batch.stamps_ns, batch.accel, batch.frame_ids,
                                             batch.covariance))
         outs = [o for o in outs if o is not None and len(o)]

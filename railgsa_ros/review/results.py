@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from railgsa_ros.location import Location, Reference
+from railgsa_ros.models.coach import CoachModel
 from railgsa_ros.offline import Source
 from railgsa_ros.review.exceedances import Exceedance
 from railgsa_ros.review.health import InputHealth
@@ -36,7 +37,7 @@ class ReviewOptions:
 
     bag: Path
     config: UncertaintyConfig = field(default_factory=UncertaintyConfig)
-    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    vehicle: VehicleParams | CoachModel = field(default_factory=VehicleParams)
     dists: Mapping[str, Distribution] | None = None
     truth: Path | None = None
     limit_end: str = 'lower'

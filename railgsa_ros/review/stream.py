@@ -32,6 +32,7 @@ from railgsa_ros.input.findings import Finding
 from railgsa_ros.input.options import InputOptions
 from railgsa_ros.inverse.quality import Quality
 from railgsa_ros.location import Location, Reference
+from railgsa_ros.models import VehicleModel
 from railgsa_ros.offline import (
     Driver,
     Source,
@@ -192,7 +193,7 @@ def _larger(best: Extreme | None, stamps: np.ndarray, chainage: np.ndarray,
     return Extreme(int(stamps[k]), float(chainage[k]), float(values[k]))
 
 
-def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams,
+def run_stream(source: Source, config: UncertaintyConfig, vehicle: VehicleParams | VehicleModel,
                dists: Mapping[str, Distribution] | None, limits: Limits,
                reference: Reference | None = None, rate_from_bag: bool = True,
                section_m: float = SECTION_M, chunk: int | None = REVIEW_CHUNK,
