@@ -17,6 +17,10 @@ from typing import Any
 
 DEMO_PROFILE = 'german-low'
 DEMO_DEFECTS = 'dip@150:len=10:depth=0.004'
+#: s after the replay ends until every output and the last diagnostics are recorded: the nodes'
+#: idle_flush_s (2 s), ~7,200 delayed outputs at flush_rate_hz (1000/s), 1 s of diagnostics and
+#: a margin for a loaded machine
+FLUSH_WAIT_S = 14.0
 DIP = (150.0, 10.0)  # start, length (m)
 SPEED = 20.0
 RATE_HZ = 1000.0  # the simulated IMU's rate (adxl355 preset), Hz
@@ -86,8 +90,8 @@ def run_live(bag: Path, out: Path, duration_s: float) -> Path:
         if replay.wait(duration_s + 90.0) != 0:
             raise RailGsaError(f'replay failed: see {out / "logs"}')
         # the nodes' last outputs and diagnostics reach the recorder: idle_flush_s (2 s), then
-        # the last band delay (~7200 outputs) paced at flush_rate_hz (2000/s), then a margin
-        time.sleep(7.0)
+        # the last band delay (~7200 outputs) paced at flush_rate_hz (1000/s), then a margin
+        time.sleep(FLUSH_WAIT_S)
         if recorder.stop().rc != 0:
             raise RailGsaError(f'recording failed: see {out / "logs"}')
     return record
