@@ -72,9 +72,6 @@ from railgsa_ros.vehicle import VehicleParams, as_theta, frequency_response
 #: the band window that decides an output's quality: the taps outside it hold less than this
 #: fraction of the impulse response's L1 norm (the FIR itself is cut at fir_tolerance)
 WINDOW_TOLERANCE = 1e-3
-#: design speeds (geometric, min_design_speed_mps to max_speed_mps) at which a coach's band
-#: window is tabled (``_coach_window_table``)
-WINDOW_SPEEDS = 24
 NO_BAND_SWITCH = 2048  # samples between Kalman speed checks when there is no band FIR
 DESIGN_PERIODS = 32  # first design grid: this many periods of the lowest band frequency
 MAX_DESIGN_BINS = 1 << 21  # largest design grid tried (rfft bins)
@@ -266,7 +263,6 @@ class InversionPipeline:
         self._fir: PartitionedFir | MultirateFir | ChannelSum | None = None
         self.delay_samples = 0
         self._window = (0, 0, 1)  # significant half-width: fixed part, low-rate part at vmin, R
-        self._coach_windows: tuple[np.ndarray, np.ndarray] | None = None  # per design speed
         self.decimation = 1
         self.band_taps = 0
         self.truncation_error = 0.0
@@ -482,15 +478,13 @@ class InversionPipeline:
         self.band_taps = taps.shape[-1]
         self.truncation_error = truncation_error(taps, response)
         channels = self.theta.shape[0] * (self.extra_channels + 1)
-        tol = max(WINDOW_TOLERANCE, cfg.fir_tolerance)
+        graded = response
         if self._wiener_nominal is not None:
-            self._coach_windows = self._coach_window_table(self._wiener_nominal, tol)
-            significant = int(self._coach_windows[1].max())
-        else:
-            graded = response
-            if self._nominal is not None and cfg.method == 'spectral':
-                graded = self._band_power(vmin) * inverse_response(self._nominal, self._grid)
-            significant = half_length(graded, tol)
+            graded = tapered(self._band_power(vmin)[:, None] * self._wiener_nominal.response(
+                self._grid, vmin), self._half).reshape(-1, self._grid.size)
+        elif self._nominal is not None and cfg.method == 'spectral':
+            graded = self._band_power(vmin) * inverse_response(self._nominal, self._grid)
+        significant = half_length(graded, max(WINDOW_TOLERANCE, cfg.fir_tolerance))
         fir: PartitionedFir | MultirateFir
         if self.decimation == 1:
             self.delay_samples = self._half
@@ -505,22 +499,6 @@ class InversionPipeline:
         if self.extra_channels:  # one FIR per data channel, summed
             return ChannelSum(fir, self.theta.shape[0], self.extra_channels + 1)
         return fir
-
-    def _coach_window_table(self, design: WienerDesign, tol: float
-                            ) -> tuple[np.ndarray, np.ndarray]:
-        """(speeds (S,) m/s, significant half-widths (S,) low-rate samples) of a coach's graded
-        (nominal) FIR at design speeds from min_design_speed_mps to max_speed_mps. Its span is
-        fixed in samples (``half_width`` at the minimum speed), so a faster design keeps taps
-        further out in distance (the LMMSE inverse rings near the blind wavelengths): the
-        quarter car's width scaled by v_min / v would grade outputs VALID whose taps still
-        reach past the end of the data (measured: 0.67 mm against a 0.14 mm limit in the last
-        100 m of a car-centre run at 20 m/s)."""
-        cfg = self.config
-        speeds = np.geomspace(cfg.min_design_speed_mps, cfg.max_speed_mps, WINDOW_SPEEDS)
-        widths = np.array([half_length(tapered(
-            self._band_power(v)[:, None] * design.response(self._grid, v),
-            self._half).reshape(-1, self._grid.size), tol) for v in speeds])
-        return speeds, widths
 
     def _error_taps(self, speed: float) -> np.ndarray:
         """Single-rate band FIR |BP|^2 / G (2 d + 1,) from acceleration to u at the speed's
@@ -752,17 +730,11 @@ class InversionPipeline:
         fixed, low, r = self._window
         cfg = self.config
         v = np.clip(np.abs(speed_mps), cfg.min_design_speed_mps, cfg.max_speed_mps)
-        if self._coach_windows is not None:  # the wider of the two tabled designs around v
-            speeds, widths = self._coach_windows
-            i = np.clip(np.searchsorted(speeds, v), 1, speeds.size - 1)
-            return fixed + r * np.maximum(widths[i - 1], widths[i]).astype(np.int64)
         return fixed + r * np.ceil(low * cfg.min_design_speed_mps / v).astype(np.int64)
 
     def _half_width_at(self, speed_mps: float) -> int:
         """``window_half_width`` of one output at |speed| ``speed_mps`` (the live push's
         Python-float paths)."""
-        if self._coach_windows is not None:
-            return int(self.window_half_width(np.array([speed_mps]))[0])
         fixed, low, r = self._window
         vmin = self.config.min_design_speed_mps
         return fixed + r * math.ceil(low * vmin / min(max(speed_mps, vmin),
