@@ -8,6 +8,7 @@ tests are skipped)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from pathlib import Path
 import threading
 from typing import Any
 
@@ -183,3 +184,17 @@ def publish_bursts(publisher: Any, msgs: Sequence[Any], rate_hz: float,
         due = time.monotonic() + size / rate_hz  # from this burst's start: no catching up
         for msg in msgs[i:i + size]:
             publisher.publish(msg)
+
+
+def recorded_stamps(bag: Path) -> dict[str, list[int]]:
+    """Topic -> header stamps (ns) of the messages of a recorded bag (rosbags' reader)."""
+    from rosbags.highlevel import AnyReader
+
+    from railgsa_ros.bag.messages import typestore
+
+    found: dict[str, list[int]] = {}
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        for conn, _, raw in reader.messages():
+            stamp = reader.deserialize(raw, conn.msgtype).header.stamp
+            found.setdefault(conn.topic, []).append(stamp.sec * 10**9 + stamp.nanosec)
+    return found

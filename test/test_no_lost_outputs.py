@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ros_helpers import Collector, DiagnosticsLog, header_stamp, values
+from ros_helpers import Collector, DiagnosticsLog, header_stamp, recorded_stamps, values
 from test_integration_replay import IRR_NODE, PARAMS, UNC_NODE, _logs, scenario, write_bag
 
 from railgsa_ros.system import System
@@ -181,20 +181,6 @@ def check_one_each(got: np.ndarray, sent: np.ndarray, accepted: int, label: str)
     assert got.size == accepted, (label, got.size, accepted, [  # one per accepted
         (int(r[0]), int(r[-1])) for r in runs][:20])
     assert np.all(order >= 0) and np.all(np.diff(order) > 0)  # sent ones, once, in order
-
-
-def recorded_stamps(bag: Path) -> dict[str, list[int]]:
-    """Topic -> header stamps (ns) of the messages of a recorded bag (rosbags' reader)."""
-    from rosbags.highlevel import AnyReader
-
-    from railgsa_ros.bag.messages import typestore
-
-    found: dict[str, list[int]] = {}
-    with AnyReader([bag], default_typestore=typestore()) as reader:
-        for conn, _, raw in reader.messages():
-            stamp = reader.deserialize(raw, conn.msgtype).header.stamp
-            found.setdefault(conn.topic, []).append(stamp.sec * 10**9 + stamp.nanosec)
-    return found
 
 
 def accepted_counts(diag: dict[str, dict[str, str]]) -> dict[str, int]:

@@ -13,7 +13,7 @@ import time
 from typing import Any
 
 import pytest
-from ros_helpers import Collector, header_stamp, imu_msgs
+from ros_helpers import Collector, header_stamp, imu_msgs, recorded_stamps
 
 from railgsa_ros.cli.main import main
 
@@ -220,20 +220,6 @@ def test_ctrl_c_to_the_terminal_group_exits_0_every_time(tmp_path: Path, wait_fo
             if _group_alive(proc.pid):
                 os.killpg(proc.pid, signal.SIGKILL)
         assert 'Traceback' not in log.read_text()
-
-
-def recorded_stamps(bag: Path) -> dict[str, list[int]]:
-    """Topic -> header stamps (ns) of the messages in a recorded bag (rosbags' reader)."""
-    from rosbags.highlevel import AnyReader
-
-    from railgsa_ros.bag.messages import typestore
-
-    found: dict[str, list[int]] = {}
-    with AnyReader([bag], default_typestore=typestore()) as reader:
-        for conn, _, raw in reader.messages():
-            stamp = reader.deserialize(raw, conn.msgtype).header.stamp
-            found.setdefault(conn.topic, []).append(stamp.sec * 10**9 + stamp.nanosec)
-    return found
 
 
 FAKE_NODE = """import signal, sys, time
