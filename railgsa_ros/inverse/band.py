@@ -18,8 +18,8 @@ import numpy as np
 from scipy import fft
 
 from railgsa_ros.errors import ConfigError
+from railgsa_ros.standards.en13848 import BANDS_M
 
-BANDS_M = {'d1': (3.0, 25.0), 'd2': (25.0, 70.0), 'd3': (70.0, 200.0)}  # EN 13848, m
 #: 'wide': the shortest wave is ~4 samples of the 0.25 m chainage grid and well inside the
 #: IMU bandwidth (ADXL355 ODR/4 = 250 Hz holds 1 m up to 250 m/s), the longest is D3's edge
 WIDE_M = (1.0, 200.0)
